@@ -1,0 +1,30 @@
+# Two entry points for a newcomer: `make run` and `make test`.
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+OUT    ?= out
+
+.PHONY: run test venv bench clean
+
+venv: $(STAMP)
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e .
+	touch $(STAMP)
+
+## Main job: simulate the default scene, render it, export it.
+run: $(STAMP)
+	$(BIN)/rheo run --out $(OUT)
+
+## Whole test suite.
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+bench: $(STAMP)
+	$(BIN)/rheo bench --backend golden --json
+
+clean:
+	rm -rf $(VENV) $(OUT) .pytest_cache
