@@ -36,6 +36,7 @@ class ElementParams:
     A: object                # c2 = A exp(-B f) between f1 and f2
     B: object
     nonlinear: bool          # False: every element has a constant c2 (no exp at run time)
+    fixed_a: bool = False    # a_min = a_max for every element: no a state (viscoelastic)
 
     @classmethod
     def build(cls, k1, c1, a_min, a_max, L, c_min, c_max, f1, f2):
@@ -45,7 +46,8 @@ class ElementParams:
         B = np.where(varies, np.log(np.where(varies, c_max / c_min, 1.0)) / np.where(varies, f2 - f1, 1.0), 0.0)
         A = c_max * np.exp(B * f1)
         return cls(_compact(k1), _compact(c1), _compact(a_min), _compact(a_max), np.asarray(L, float),
-                   _compact(c_min), _compact(c_max), _compact(A), _compact(B), bool(np.any(varies)))
+                   _compact(c_min), _compact(c_max), _compact(A), _compact(B), bool(np.any(varies)),
+                   bool(np.all(np.asarray(a_min) == np.asarray(a_max))))
 
     def damper(self, f_prev: np.ndarray):
         """c2 from the previous step's |T| (one-step-lagged nonlinear damper, MODEL.md section 2)."""
@@ -54,17 +56,31 @@ class ElementParams:
         return np.clip(self.A * np.exp(-self.B * f_prev), self.c_min, self.c_max)
 
 
-def element_forces(x, v, a, f_prev, i, j, p: ElementParams):
-    """Return (T, e, adot): tension (E,), unit vectors (E, D), and the clamped rate of a (E,)."""
-    d = x[j] - x[i]
-    l = np.sqrt(np.einsum("ij,ij->i", d, d))
-    e = d / l[:, None]
-    ldot = np.einsum("ij,ij->i", e, v[j] - v[i])
+def element_forces(xt, vt, a, f_prev, i, j, p: ElementParams):
+    """Element tensions from component-major positions and velocities xt, vt (D, N).
+
+    Returns (T, T/l, d, adot): tension (E,), tension per unit length (E,), the edge vectors
+    d = x_j - x_i as a list of D arrays (E,), and the clamped rate of a (E,). T e = (T/l) d.
+    """
+    D = len(xt)
+    d = [np.take(xt[k], j) - np.take(xt[k], i) for k in range(D)]
+    dv = [np.take(vt[k], j) - np.take(vt[k], i) for k in range(D)]
+    l2 = d[0] * d[0]
+    dd = d[0] * dv[0]
+    for k in range(1, D):
+        l2 += d[k] * d[k]
+        dd += d[k] * dv[k]
+    l = np.sqrt(l2)
+    inv_l = 1.0 / l
+    ldot = dd * inv_l
     c2 = p.damper(f_prev)
-    s = a * l - p.L
-    k1s = p.k1 * s
-    adot = (c2 * (1.0 - a) * ldot - p.c1 * a * ldot - k1s) / ((p.c1 + c2) * l)
-    adot = np.where(a <= p.a_min, np.maximum(adot, 0.0), adot)
-    adot = np.where(a >= p.a_max, np.minimum(adot, 0.0), adot)
-    T = k1s + p.c1 * (adot * l + a * ldot)
-    return T, e, adot
+    k1s = p.k1 * (a * l - p.L)
+    if p.fixed_a:      # a_min = a_max everywhere: a never moves, adot = 0 (viscoelastic)
+        adot = np.zeros_like(a)
+        T = k1s + p.c1 * a * ldot
+    else:
+        adot = ((c2 - (p.c1 + c2) * a) * ldot - k1s) * inv_l / (p.c1 + c2)
+        adot = np.where(a <= p.a_min, np.maximum(adot, 0.0), adot)
+        adot = np.where(a >= p.a_max, np.minimum(adot, 0.0), adot)
+        T = k1s + p.c1 * (adot * l + a * ldot)
+    return T, T * inv_l, d, adot

@@ -155,6 +155,18 @@ def from_file(path, dim: int, scale: float = 1.0) -> Mesh:
     return Mesh(nodes, edges_of_cells(cells), cells)
 
 
+def remove_box(m: Mesh, lo, hi) -> Mesh:
+    """Cut away the cells whose centroid lies inside the box [lo, hi]; drop nodes no cell uses."""
+    centre = m.nodes[m.cells].mean(1)
+    keep = ~np.all((centre >= np.asarray(lo)) & (centre <= np.asarray(hi)), axis=1)
+    cells = m.cells[keep]
+    used = np.unique(cells)
+    remap = np.full(len(m.nodes), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    cells = remap[cells]
+    return Mesh(m.nodes[used], edges_of_cells(cells), cells)
+
+
 # ---------------------------------------------------------------- derived connectivity
 
 def boundary_faces(cells: np.ndarray, nodes: np.ndarray):

@@ -76,46 +76,56 @@ class System:
         return len(self.edges)
 
 
+def component_major(arr: np.ndarray) -> np.ndarray:
+    """The same (N, D) array, stored as a contiguous (D, N) buffer (fast per-axis gathers)."""
+    return np.ascontiguousarray(arr.T).T
+
+
 @dataclass
 class State:
-    x: np.ndarray
+    x: np.ndarray            # (N, D), component-major storage
     v: np.ndarray
-    a: np.ndarray
+    a: np.ndarray            # (E,)
     f_prev: np.ndarray       # |T| of the previous step (nonlinear damper input)
     step: int = 0
 
     @classmethod
     def initial(cls, sys: System) -> "State":
-        return cls(sys.x0.copy(), sys.v0.copy(), sys.a0.copy(), np.zeros(sys.n_elements))
+        return cls(component_major(sys.x0), component_major(sys.v0), sys.a0.copy(),
+                   np.zeros(sys.n_elements))
 
     def copy(self) -> "State":
-        return State(self.x.copy(), self.v.copy(), self.a.copy(), self.f_prev.copy(), self.step)
+        return State(component_major(self.x), component_major(self.v), self.a.copy(),
+                     self.f_prev.copy(), self.step)
 
 
 class Golden:
     """Steps a System in float64."""
 
     def __init__(self, sys: System):
+        import scipy.sparse as sp
         self.sys = sys
         self.i = np.ascontiguousarray(sys.edges[:, 0])
         self.j = np.ascontiguousarray(sys.edges[:, 1])
-        N, D = sys.x0.shape
-        # element scatter: one bincount over flattened (node, axis) slots
-        self._scatter_idx = np.concatenate([self.i[:, None] * D + np.arange(D),
-                                            self.j[:, None] * D + np.arange(D)]).ravel()
-        self._inv_m = np.where(sys.pinned, 0.0, 1.0 / sys.mass)[:, None]
-        self._free = (~sys.pinned)[:, None].astype(float)
-        self._g_dt = sys.gravity[None, :] * sys.dt
+        N, E = sys.n_nodes, sys.n_elements
+        # scatter of +T e to start nodes and -T e to end nodes as one sparse product per axis
+        self._scatter = sp.csr_matrix(
+            (np.concatenate([np.ones(E), -np.ones(E)]),
+             (np.concatenate([self.i, self.j]), np.concatenate([np.arange(E), np.arange(E)]))),
+            shape=(N, E))
+        self._inv_m_dt = np.where(sys.pinned, 0.0, sys.dt / sys.mass)
+        self._free = (~sys.pinned).astype(float)
+        self._g_dt = sys.gravity * sys.dt
         self._has_extra = bool(sys.floor or sys.topology or sys.collision or sys.loads)
 
     def forces(self, st: State, t: float):
-        """Total force on every node (N, D), and the elements' (T, adot)."""
+        """Total force on every node as a component-major (N, D) array, and the elements' (T, adot)."""
         sys = self.sys
-        N, D = st.x.shape
-        T, e, adot = element_forces(st.x, st.v, st.a, st.f_prev, self.i, self.j, sys.elem)
-        Te = T[:, None] * e
-        F = np.bincount(self._scatter_idx, weights=np.concatenate([Te, -Te]).ravel(),
-                        minlength=N * D).reshape(N, D)
+        if not st.x.T.flags.c_contiguous:
+            st.x, st.v = component_major(st.x), component_major(st.v)
+        T, T_l, d, adot = element_forces(st.x.T, st.v.T, st.a, st.f_prev, self.i, self.j, sys.elem)
+        F = np.stack([self._scatter @ (T_l * dk) for dk in d])      # (D, N)
+        F = F.T
         if self._has_extra:
             if sys.topology is not None:
                 tp = sys.topology
@@ -133,13 +143,18 @@ class Golden:
         sys = self.sys
         dt = sys.dt
         F, T, adot = self.forces(st, st.step * dt)
-        st.v += F * (self._inv_m * dt)
-        st.v += self._g_dt
-        st.v *= self._free
-        st.x += st.v * dt
-        st.a += adot * dt
-        np.clip(st.a, sys.elem.a_min, sys.elem.a_max, out=st.a)
-        np.abs(T, out=st.f_prev)
+        vt, xt, Ft = st.v.T, st.x.T, F.T
+        for k in range(sys.dim):
+            vt[k] += Ft[k] * self._inv_m_dt
+            if self._g_dt[k] != 0.0:
+                vt[k] += self._g_dt[k]
+            vt[k] *= self._free
+            xt[k] += vt[k] * dt
+        if not sys.elem.fixed_a:
+            st.a += adot * dt
+            np.clip(st.a, sys.elem.a_min, sys.elem.a_max, out=st.a)
+        if sys.elem.nonlinear:
+            np.abs(T, out=st.f_prev)
         st.step += 1
 
 

@@ -30,11 +30,11 @@ PRESETS = {
     # a_min = a_max = 1: the Voigt part takes the whole length, c2 never acts (no a state)
     "viscoelastic": dict(k1=50.0, c1=0.5, a0=1.0, a_min=1.0, a_max=1.0, c2=1.0),
     # k1 = 0, c1 = c_max: two dampers in series; plasticity set by c_min and f2
-    "plastic": dict(k1=0.0, c1=50.0, a0=0.5, a_min=0.0, a_max=1.0,
-                    c_min=0.5, c_max=50.0, f1=0.01, f2=0.1),
+    "plastic": dict(k1=0.0, c1=5.0, a0=0.5, a_min=0.0, a_max=1.0,
+                    c_min=0.5, c_max=5.0, f1=0.01, f2=0.05),
     # the general three-element element with a force-dependent damper
     "rheological": dict(k1=50.0, c1=0.5, a0=0.5, a_min=0.05, a_max=1.0,
-                        c_min=0.5, c_max=50.0, f1=0.01, f2=0.1),
+                        c_min=0.5, c_max=500.0, f1=0.01, f2=0.05),
     # a stiff viscoelastic object (seed fig. 11)
     "rigid": dict(k1=2000.0, c1=2.0, a0=1.0, a_min=1.0, a_max=1.0, c2=1.0),
 }
@@ -167,8 +167,8 @@ def _mesh(chk: _Tables, tbl, where, dim, base_dir) -> meshlib.Mesh:
     kinds = {
         "single": (("length",), ()),
         "chain": (("n", "length"), ()),
-        "rectangle": (("size", "divisions"), ()),
-        "box": (("size", "divisions"), ()),
+        "rectangle": (("size", "divisions"), ("remove",)),
+        "box": (("size", "divisions"), ("remove",)),
         "file": (("path",), ("scale",)),
         "explicit": (("nodes",), ("edges", "cells")),
     }
@@ -192,7 +192,19 @@ def _mesh(chk: _Tables, tbl, where, dim, base_dir) -> meshlib.Mesh:
         div = tbl["divisions"]
         if not (isinstance(div, list) and len(div) == dim and all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in div)):
             chk.fail(where, f"'divisions' must be a list of {dim} integers >= 1, got {div!r}")
-        return meshlib.rectangle(size[0], size[1], *div) if dim == 2 else meshlib.box(size, div)
+        m = meshlib.rectangle(size[0], size[1], *div) if dim == 2 else meshlib.box(size, div)
+        cuts = tbl.get("remove", [])
+        if not isinstance(cuts, list):
+            chk.fail(where, "'remove' must be a list of boxes [[lo...], [hi...]]")
+        for c, cut in enumerate(cuts):
+            if not (isinstance(cut, list) and len(cut) == 2):
+                chk.fail(where, f"'remove' box {c} must be [[lo...], [hi...]]")
+            lo = chk.vector({"lo": cut[0]}, "lo", f"{where}.remove.{c}", dim)
+            hi = chk.vector({"hi": cut[1]}, "hi", f"{where}.remove.{c}", dim)
+            m = meshlib.remove_box(m, lo, hi)
+            if len(m.cells) == 0:
+                chk.fail(where, f"'remove' box {c} removes every cell")
+        return m
     if kind == "file":
         if not isinstance(tbl["path"], str):
             chk.fail(where, "'path' must be a string")

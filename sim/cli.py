@@ -1,0 +1,189 @@
+"""`rheo`: the command line. Every user error is one line on stderr and exit code 2, never a traceback."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+DEFAULT_SCENE = "press-2d-rheological"
+BACKENDS = ("golden",)
+
+
+class UsageError(Exception):
+    """A problem with the user's input; printed as one line, exit code 2."""
+
+
+def _positive_int(text: str) -> int:
+    try:
+        val = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+    if val < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {val}")
+    return val
+
+
+def _load_system(ref: str):
+    from golden.scene import compile_scene, load_scene
+    return compile_scene(load_scene(ref))
+
+
+def _simulate(sys_, backend: str, steps, every, progress=True):
+    from golden.model import simulate
+    if backend != "golden":
+        raise UsageError(f"backend '{backend}' is not available (available: {', '.join(BACKENDS)})")
+    with np.errstate(over="ignore", invalid="ignore"):
+        return simulate(sys_, steps=steps, every=every, progress=progress)
+
+
+# ---------------------------------------------------------------- commands
+
+def cmd_scenes(args) -> int:
+    from golden.scene import builtin_names, load_scene
+    for name in builtin_names():
+        sc = load_scene(name)
+        print(f"{name:26s} {sc.description}")
+    return 0
+
+
+def cmd_simulate(args) -> int:
+    from sim import runfile
+    if not args.out.endswith(".npz"):
+        raise UsageError(f"--out must name a .npz file, got '{args.out}'")
+    sys_ = _load_system(args.scene)
+    run = _simulate(sys_, args.backend, args.steps, args.every)
+    runfile.save(args.out, runfile.run_arrays(sys_, run, args.backend))
+    steps = int(round(run.t[-1] / sys_.dt))
+    print(f"{sys_.name}: {steps} steps of {sys_.dt:g} s "
+          f"({run.t[-1]:g} s simulated) in {run.wall_seconds:.2f} s wall, {len(run.t)} frames -> {args.out}")
+    return 0
+
+
+def cmd_show(args) -> int:
+    from sim.render import render
+    out = render(args.run, args.out, frames=args.frames)
+    print(f"wrote {out}")
+    return 0
+
+
+def cmd_export(args) -> int:
+    from sim.vtk_export import export_vtk
+    files = export_vtk(args.run, args.vtk)
+    print(f"wrote {len(files)} VTK frames and run.pvd to {args.vtk}")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from sim import bench
+    if args.backend not in BACKENDS:
+        raise UsageError(f"backend '{args.backend}' is not available (available: {', '.join(BACKENDS)})")
+    rows = bench.run(args.backend, sizes=args.sizes, min_seconds=args.seconds)
+    if args.json:
+        print(json.dumps({"backend": args.backend, "results": rows}, indent=2))
+    else:
+        print(f"{'elements':>9} {'nodes':>8} {'steps/s':>10} {'element-updates/s':>18}")
+        for r in rows:
+            print(f"{r['elements']:9d} {r['nodes']:8d} {r['steps_per_s']:10.1f} {r['element_updates_per_s']:18.3e}")
+    return 0
+
+
+def cmd_run(args) -> int:
+    """The main job: simulate the default scene and write the run, pictures and the VTK series."""
+    from sim import runfile
+    from sim.render import render, render_before_after
+    from sim.vtk_export import export_vtk
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    sys_ = _load_system(args.scene)
+    print(f"[1/4] simulating {sys_.name}: {sys_.n_nodes} nodes, {sys_.n_elements} elements, "
+          f"{sys_.n_steps} steps of {sys_.dt:g} s (golden, float64)")
+    run = _simulate(sys_, "golden", None, None)
+    npz = runfile.save(out / f"{sys_.name}.npz", runfile.run_arrays(sys_, run, "golden"))
+    print(f"      {run.wall_seconds:.2f} s wall -> {npz}")
+    print("[2/4] rendering frames")
+    png = render(npz, out / f"{sys_.name}.png")
+    peak = _peak_frame(sys_, run)
+    ba = render_before_after(npz, out / f"{sys_.name}-before-after.png", [0, peak, len(run.t) - 1],
+                             ["before", f"loaded (t = {run.t[peak]:.2f} s)", f"after release (t = {run.t[-1]:.2f} s)"])
+    print(f"      {png}\n      {ba}")
+    print("[3/4] rendering animation")
+    gif = render(npz, out / f"{sys_.name}.gif")
+    print(f"      {gif}")
+    print("[4/4] exporting VTK time series")
+    files = export_vtk(npz, out / "vtk")
+    print(f"      {len(files)} frames -> {out / 'vtk' / 'run.pvd'}")
+    return 0
+
+
+def _peak_frame(sys_, run) -> int:
+    """Frame of the largest displacement of the loaded nodes (or of all nodes without loads)."""
+    nodes = np.concatenate([ld.nodes for ld in sys_.loads]) if sys_.loads else np.arange(sys_.n_nodes)
+    disp = np.linalg.norm(run.x[:, nodes] - run.x[0, nodes], axis=2).mean(1)
+    return int(np.argmax(disp))
+
+
+# ---------------------------------------------------------------- parser
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="rheo", description="Rheological soft-object simulator: golden model, "
+                                "bit-true fixed point and FPGA pipeline (Kimura et al. 2002).")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    s = sub.add_parser("scenes", help="list the built-in scenes")
+    s.set_defaults(func=cmd_scenes)
+
+    s = sub.add_parser("simulate", help="run a scene and write its frames to an NPZ file")
+    s.add_argument("scene", help="built-in scene name or path to a scene .toml")
+    s.add_argument("--backend", default="golden", choices=BACKENDS, help="model to run (default: golden)")
+    s.add_argument("--steps", type=_positive_int, help="number of steps (default: the scene's duration / dt)")
+    s.add_argument("--every", type=_positive_int, help="record every K-th step (default: the scene's output_every)")
+    s.add_argument("--out", required=True, help="output .npz file")
+    s.set_defaults(func=cmd_simulate)
+
+    s = sub.add_parser("show", help="render a run to PNG frames or a GIF animation")
+    s.add_argument("run", help="run .npz written by `rheo simulate`")
+    s.add_argument("--out", required=True, help="output .png (frames side by side) or .gif (animation)")
+    s.add_argument("--frames", type=_positive_int, help="number of frames in a PNG (default 4)")
+    s.set_defaults(func=cmd_show)
+
+    s = sub.add_parser("export", help="write a VTK time series (ParaView) of a run")
+    s.add_argument("run", help="run .npz written by `rheo simulate`")
+    s.add_argument("--vtk", required=True, metavar="DIR", help="output directory (frame_*.vtu and run.pvd)")
+    s.set_defaults(func=cmd_export)
+
+    s = sub.add_parser("bench", help="measure steps/s and element-updates/s on generated meshes")
+    s.add_argument("--backend", default="golden", help="model to measure (default: golden)")
+    s.add_argument("--json", action="store_true", help="print JSON")
+    s.add_argument("--sizes", type=_positive_int, nargs="+", default=[1_000, 10_000, 100_000],
+                   help="approximate element counts (default: 1000 10000 100000)")
+    s.add_argument("--seconds", type=float, default=1.0, help="minimum measuring time per size (default 1)")
+    s.set_defaults(func=cmd_bench)
+
+    s = sub.add_parser("run", help="the main job: simulate the default scene, render it and export it")
+    s.add_argument("--scene", default=DEFAULT_SCENE, help=f"scene (default: {DEFAULT_SCENE})")
+    s.add_argument("--out", default="out", help="output directory (default: out)")
+    s.set_defaults(func=cmd_run)
+    return p
+
+
+def main(argv=None) -> int:
+    from golden.mesh import MeshError
+    from golden.model import SimulationDiverged
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (UsageError, MeshError, SimulationDiverged, ValueError, FileNotFoundError, OSError) as exc:
+        print(f"rheo: error: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("rheo: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

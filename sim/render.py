@@ -1,0 +1,454 @@
+"""Pictures of a run file: a row of frames as PNG, or an animated GIF.
+
+    render(npz_path, out_path, frames=None, dpi=100) -> Path
+    render_before_after(npz_path, out_path, frame_indices, labels, dpi=100) -> Path
+
+Elements are drawn as line segments coloured by object, 2D cells are lightly filled, pinned nodes are
+small black markers and the floor (when the run has one) is a grey line in 2D or a translucent plane in
+3D. All panels / animation frames share one set of axis limits with equal aspect.
+
+Errors meant to become one-line CLI messages: FileNotFoundError for a missing run file, ValueError for a
+malformed run file (missing keys, inconsistent shapes), bad frame indices or an unsupported output suffix.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import zipfile
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.animation import PillowWriter  # noqa: E402
+from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection  # noqa: E402
+
+RENDER_KEYS = ("t", "x", "edges", "cells", "node_object", "pinned")
+DEFAULT_PANELS = 4
+MAX_GIF_FRAMES = 200
+_READ_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error)
+_OPTIONAL_KEYS = ("v", "a", "cell_object", "object_names", "dim", "scene", "floor_height")
+
+
+# ----------------------------------------------------------------------------------------------------
+# Reading and checking a run file (shared with sim.vtk_export)
+# ----------------------------------------------------------------------------------------------------
+
+def load_run(npz_path, required=RENDER_KEYS) -> dict:
+    """Read the keys of a run file needed here, check their shapes and return them normalised.
+
+    Returns a dict with at least t, x, edges, cells (shape (C, D+1) even when empty), node_object,
+    pinned, cell_object, object_names (list of str), n_objects, dim, scene (str), floor_height (float,
+    NaN without a floor), plus v and a when present.
+    """
+    path = Path(npz_path)
+    if not path.is_file():
+        raise FileNotFoundError(f"run file not found: {path}")
+    data = {}
+    try:
+        f = np.load(path, allow_pickle=False)
+    except _READ_ERRORS as exc:
+        raise ValueError(f"cannot read run file {path}: {exc}") from None
+    if not hasattr(f, "files"):
+        raise ValueError(f"cannot read run file {path}: not an NPZ archive")
+    try:
+        with f:
+            files = set(f.files)
+            missing = [k for k in required if k not in files]
+            if not missing:
+                for k in (set(required) | set(_OPTIONAL_KEYS)) & files:
+                    try:
+                        data[k] = f[k]
+                    except ValueError:
+                        if k in required:
+                            raise
+                        # an optional key that cannot be read without pickling is ignored
+    except _READ_ERRORS as exc:
+        raise ValueError(f"cannot read run file {path}: {exc}") from None
+    if missing:
+        raise ValueError(f"run file {path} lacks required key(s): {', '.join(missing)}")
+    return _check_run(path, data)
+
+
+def _bad(path, what):
+    return ValueError(f"run file {path}: {what}")
+
+
+def _check_run(path, d: dict) -> dict:
+    x = np.asarray(d["x"], dtype=np.float64)
+    if x.ndim != 3 or x.shape[2] not in (2, 3):
+        raise _bad(path, f"x must have shape (F, N, 2|3), got {x.shape}")
+    F, N, D = x.shape
+    if F == 0:
+        raise _bad(path, "the run has no frames")
+    t = np.asarray(d["t"], dtype=np.float64).reshape(-1)
+    if t.shape != (F,):
+        raise _bad(path, f"t has {t.size} entries but x has {F} frames")
+    if "dim" in d and int(d["dim"]) != D:
+        raise _bad(path, f"dim is {int(d['dim'])} but x has {D} components")
+
+    edges = np.asarray(d["edges"])
+    if edges.size == 0:
+        edges = np.zeros((0, 2), np.int64)
+    if edges.ndim != 2 or edges.shape[1] != 2:
+        raise _bad(path, f"edges must have shape (E, 2), got {edges.shape}")
+    edges = edges.astype(np.int64)
+    E = len(edges)
+
+    out = dict(t=t, x=x, edges=edges, dim=D)
+
+    if "cells" in d:
+        cells = np.asarray(d["cells"])
+        if cells.size == 0:
+            cells = np.zeros((0, D + 1), np.int64)
+        if cells.ndim != 2 or cells.shape[1] != D + 1:
+            raise _bad(path, f"cells must have shape (C, {D + 1}) in {D}D, got {cells.shape}")
+        cells = cells.astype(np.int64)
+    else:
+        cells = np.zeros((0, D + 1), np.int64)
+    out["cells"] = cells
+    for name, idx in (("edges", edges), ("cells", cells)):
+        if idx.size and (idx.min() < 0 or idx.max() >= N):
+            raise _bad(path, f"{name} refer to nodes outside 0..{N - 1}")
+
+    node_object = np.asarray(d["node_object"]).reshape(-1) if "node_object" in d else np.zeros(N, np.int64)
+    if node_object.shape != (N,):
+        raise _bad(path, f"node_object has {node_object.size} entries for {N} nodes")
+    node_object = node_object.astype(np.int64)
+    if N and node_object.min() < 0:
+        raise _bad(path, "node_object has negative entries")
+    out["node_object"] = node_object
+
+    pinned = np.asarray(d["pinned"]).reshape(-1) if "pinned" in d else np.zeros(N, bool)
+    if pinned.shape != (N,):
+        raise _bad(path, f"pinned has {pinned.size} entries for {N} nodes")
+    out["pinned"] = pinned.astype(bool)
+
+    cell_object = None
+    if "cell_object" in d:
+        cell_object = np.asarray(d["cell_object"]).reshape(-1).astype(np.int64)
+        if cell_object.shape != (len(cells),):
+            cell_object = None
+    if cell_object is None:  # fall back on the object of each cell's first node
+        cell_object = node_object[cells[:, 0]] if len(cells) else np.zeros(0, np.int64)
+    out["cell_object"] = cell_object
+
+    names = [str(s) for s in np.asarray(d.get("object_names", [])).reshape(-1)]
+    n_objects = max(len(names), int(node_object.max()) + 1 if N else 0,
+                    int(cell_object.max()) + 1 if len(cell_object) else 0)
+    names += [f"object {k}" for k in range(len(names), n_objects)]
+    out["object_names"] = names
+    out["n_objects"] = n_objects
+
+    if "v" in d:
+        v = np.asarray(d["v"], dtype=np.float64)
+        if v.shape != x.shape:
+            raise _bad(path, f"v has shape {v.shape} but x has {x.shape}")
+        out["v"] = v
+    if "a" in d:
+        a = np.asarray(d["a"], dtype=np.float64)
+        if a.size == 0 and E == 0:
+            a = np.zeros((F, 0))
+        if a.shape != (F, E):
+            raise _bad(path, f"a must have shape ({F}, {E}), got {a.shape}")
+        out["a"] = a
+
+    out["scene"] = str(d["scene"]) if "scene" in d else ""
+    fh = np.asarray(d.get("floor_height", np.nan), dtype=np.float64).reshape(-1)
+    out["floor_height"] = float(fh[0]) if fh.size else float("nan")
+    return out
+
+
+# ----------------------------------------------------------------------------------------------------
+# Frame selection, limits, colours
+# ----------------------------------------------------------------------------------------------------
+
+def _spread(count: int, F: int) -> list[int]:
+    n = min(count, F)
+    return [int(i) for i in np.unique(np.round(np.linspace(0, F - 1, n)).astype(np.int64))]
+
+
+def select_frames(frames, F: int, default_count: int) -> list[int]:
+    """None -> default_count frames evenly spread from first to last; int -> that many (at most F);
+    a sequence -> those indices (negative ones count from the end). Out of range -> ValueError."""
+    if frames is None:
+        return _spread(default_count, F)
+    if isinstance(frames, (bool, np.bool_)):
+        raise ValueError(f"frames must be a count or a list of frame indices, got {frames!r}")
+    if isinstance(frames, (int, np.integer)):
+        if frames < 1:
+            raise ValueError(f"frame count must be at least 1, got {frames}")
+        return _spread(int(frames), F)
+    try:
+        items = list(frames)
+    except TypeError:
+        raise ValueError(f"frames must be a count or a list of frame indices, got {frames!r}") from None
+    if not items:
+        raise ValueError("no frames selected")
+    out = []
+    for i in items:
+        if isinstance(i, (bool, np.bool_)) or not isinstance(i, (int, np.integer)):
+            raise ValueError(f"frame index must be an integer, got {i!r}")
+        if not -F <= i < F:
+            raise ValueError(f"frame index {int(i)} out of range: the run has {F} frames (0..{F - 1})")
+        out.append(int(i) % F)
+    return out
+
+
+def _limits(run: dict, idx) -> tuple[np.ndarray, np.ndarray]:
+    """Axis limits over the chosen frames (and the floor), with a margin; every axis gets a span of at
+    least 20 % of the largest one so flat objects stay visible."""
+    D = run["dim"]
+    pts = run["x"][idx].reshape(-1, D)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if len(pts) == 0:
+        raise ValueError("the selected frames have no finite node coordinates")
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    fh = run["floor_height"]
+    if np.isfinite(fh):
+        lo[D - 1], hi[D - 1] = min(lo[D - 1], fh), max(hi[D - 1], fh)
+    span = hi - lo
+    big = span.max()
+    if big <= 0:
+        big = max(1e-3, 0.2 * np.abs(lo).max())
+    short = span < 0.2 * big
+    mid = 0.5 * (lo + hi)
+    lo = np.where(short, mid - 0.1 * big, lo) - 0.05 * big
+    hi = np.where(short, mid + 0.1 * big, hi) + 0.05 * big
+    return lo, hi
+
+
+def _object_colours(n: int) -> np.ndarray:
+    cmap = matplotlib.colormaps["tab10"]
+    return np.array([cmap(k % 10) for k in range(max(n, 1))])
+
+
+def _line_width(E: int) -> float:
+    return 1.5 if E <= 300 else 1.0 if E <= 3000 else 0.6
+
+
+def _time_label(t: float) -> str:
+    return f"t = {t:.4g} s"
+
+
+# ----------------------------------------------------------------------------------------------------
+# Drawing one frame into an axes, and updating it for the next animation frame
+# ----------------------------------------------------------------------------------------------------
+
+class _Painter:
+    def __init__(self, run: dict, lo, hi):
+        self.run, self.lo, self.hi = run, lo, hi
+        self.D = run["dim"]
+        colours = _object_colours(run["n_objects"])
+        self.colours = colours
+        edges, cells = run["edges"], run["cells"]
+        self.edge_colours = colours[run["node_object"][edges[:, 0]]] if len(edges) else np.zeros((0, 4))
+        self.cell_colours = colours[run["cell_object"]] if len(cells) else np.zeros((0, 4))
+        self.node_colours = colours[run["node_object"]]
+        self.lw = _line_width(len(edges))
+
+    def setup_axes(self, ax):
+        lo, hi, D = self.lo, self.hi, self.D
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        if D == 2:
+            ax.set_aspect("equal")
+        else:
+            ax.set_zlim(lo[2], hi[2])
+            ax.set_zlabel("z [m]")
+            ax.set_box_aspect(tuple(hi - lo))
+        fh = self.run["floor_height"]
+        if np.isfinite(fh):
+            if D == 2:
+                ax.axhspan(lo[1], fh, color="0.93", zorder=0, lw=0)
+                ax.axhline(fh, color="0.5", lw=1.5, zorder=0.5)
+            else:
+                quad = [[(lo[0], lo[1], fh), (hi[0], lo[1], fh), (hi[0], hi[1], fh), (lo[0], hi[1], fh)]]
+                ax.add_collection3d(Poly3DCollection(quad, facecolors=(0.5, 0.5, 0.5, 0.2),
+                                                     edgecolors=(0.5, 0.5, 0.5, 0.5)))
+
+    def draw(self, ax, f: int) -> dict:
+        """Draw frame f; returns the artists that update() moves."""
+        run, D = self.run, self.D
+        x = run["x"][f]
+        edges, cells, pinned = run["edges"], run["cells"], run["pinned"]
+        art = {}
+        if D == 2:
+            if len(cells):
+                art["cells"] = ax.add_collection(PolyCollection(
+                    x[cells], facecolors=self.cell_colours, edgecolors="none", alpha=0.25, zorder=1))
+            if len(edges):
+                art["edges"] = ax.add_collection(LineCollection(
+                    x[edges], colors=self.edge_colours, linewidths=self.lw, zorder=2))
+            else:
+                art["nodes"] = ax.scatter(x[:, 0], x[:, 1], s=6, c=self.node_colours, zorder=2)
+            (art["pinned"],) = ax.plot(x[pinned, 0], x[pinned, 1], ls="none", marker="o", ms=3,
+                                       color="k", zorder=3)
+        else:
+            if len(edges):
+                lc = Line3DCollection(x[edges], colors=self.edge_colours, linewidths=self.lw)
+                ax.add_collection3d(lc)
+                art["edges"] = lc
+            else:
+                (art["nodes3"],) = ax.plot(x[:, 0], x[:, 1], x[:, 2], ls="none", marker="o", ms=2,
+                                           color=self.colours[0])
+            (art["pinned"],) = ax.plot(x[pinned, 0], x[pinned, 1], x[pinned, 2], ls="none", marker="o",
+                                       ms=3, color="k")
+        return art
+
+    def update(self, art: dict, f: int):
+        run = self.run
+        x = run["x"][f]
+        p = run["pinned"]
+        if "cells" in art:
+            art["cells"].set_verts(x[run["cells"]])
+        if "edges" in art:
+            art["edges"].set_segments(x[run["edges"]])
+        if "nodes" in art:
+            art["nodes"].set_offsets(x)
+        if "nodes3" in art:
+            art["nodes3"].set_data_3d(x[:, 0], x[:, 1], x[:, 2])
+        if self.D == 2:
+            art["pinned"].set_data(x[p, 0], x[p, 1])
+        else:
+            art["pinned"].set_data_3d(x[p, 0], x[p, 1], x[p, 2])
+
+
+# ----------------------------------------------------------------------------------------------------
+# Output
+# ----------------------------------------------------------------------------------------------------
+
+def _suffix_of(out_path) -> str:
+    suffix = Path(out_path).suffix.lower()
+    if suffix not in (".png", ".gif"):
+        raise ValueError(f"unsupported output format '{Path(out_path).suffix}': use .png or .gif")
+    return suffix
+
+
+def _write_atomically(out_path: Path, write) -> Path:
+    """Call write(tmp_path) on a temporary file next to out_path, then move it into place."""
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(suffix=out_path.suffix, prefix=f".{out_path.stem}.", dir=out_path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, out_path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return out_path
+
+
+def _panel_size(lo, hi, D: int, height: float) -> tuple[float, float]:
+    if D == 3:
+        return height * 1.1, height
+    ratio = float(np.clip((hi[0] - lo[0]) / (hi[1] - lo[1]), 0.5, 3.0))
+    return height * ratio + 0.6, height
+
+
+def _legend_handles(run: dict, painter: _Painter):
+    used = sorted(set(run["node_object"].tolist()) | set(run["cell_object"].tolist()))
+    if len(used) < 2:
+        return []
+    return [Line2D([], [], color=painter.colours[k], lw=2, label=run["object_names"][k]) for k in used]
+
+
+def _panels_png(run: dict, out_path: Path, idx: list[int], titles: list[str], dpi: int,
+                suptitle: str) -> Path:
+    D = run["dim"]
+    lo, hi = _limits(run, idx)
+    painter = _Painter(run, lo, hi)
+    pw, ph = _panel_size(lo, hi, D, 3.2)
+    n = len(idx)
+    fig = plt.figure(figsize=(pw * n, ph + 0.8), layout="constrained")
+    try:
+        for i, (f, title) in enumerate(zip(idx, titles)):
+            ax = fig.add_subplot(1, n, i + 1, projection="3d" if D == 3 else None)
+            painter.setup_axes(ax)
+            painter.draw(ax, f)
+            ax.set_title(title)
+            if D == 2 and i > 0:
+                ax.set_ylabel("")
+        handles = _legend_handles(run, painter)
+        if handles:
+            fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 6),
+                       fontsize="small", frameon=False)
+        if suptitle:
+            fig.suptitle(suptitle)
+        return _write_atomically(out_path, lambda tmp: fig.savefig(tmp, format="png", dpi=dpi))
+    finally:
+        plt.close(fig)
+
+
+def _gif(run: dict, out_path: Path, idx: list[int], dpi: int) -> Path:
+    D = run["dim"]
+    lo, hi = _limits(run, idx)
+    painter = _Painter(run, lo, hi)
+    pw, ph = _panel_size(lo, hi, D, 4.5)
+    fig = plt.figure(figsize=(pw, ph + 0.4))
+    try:
+        ax = fig.add_subplot(1, 1, 1, projection="3d" if D == 3 else None)
+        painter.setup_axes(ax)
+        art = painter.draw(ax, idx[0])
+        title = ax.set_title(_time_label(run["t"][idx[0]]))
+        if run["scene"]:
+            fig.suptitle(run["scene"])
+        fig.tight_layout()
+        t = run["t"]
+        duration = float(t[idx[-1]] - t[idx[0]])
+        # real time when that gives a watchable rate, else clamped to 5..30 frames per second
+        fps = float(np.clip((len(idx) - 1) / duration, 5, 30)) if duration > 0 and len(idx) > 1 else 10.0
+
+        def write(tmp):
+            writer = PillowWriter(fps=fps)
+            with writer.saving(fig, tmp, dpi):
+                for f in idx:
+                    painter.update(art, f)
+                    title.set_text(_time_label(t[f]))
+                    writer.grab_frame()
+
+        return _write_atomically(out_path, write)
+    finally:
+        plt.close(fig)
+
+
+def render(npz_path, out_path, frames=None, dpi=100) -> Path:
+    """Render a run file to a PNG (a row of frames) or an animated GIF, chosen by out_path's suffix.
+
+    frames: None (PNG: 4 frames evenly spread from first to last; GIF: every frame, subsampled to at
+    most 200), an int count of evenly spread frames, or a list of frame indices (negative ones count
+    from the end). Returns the output path.
+    """
+    out_path = Path(out_path)
+    suffix = _suffix_of(out_path)
+    run = load_run(npz_path)
+    F = len(run["t"])
+    if suffix == ".png":
+        idx = select_frames(frames, F, DEFAULT_PANELS)
+        return _panels_png(run, out_path, idx, [_time_label(run["t"][f]) for f in idx], dpi, run["scene"])
+    idx = select_frames(frames, F, MAX_GIF_FRAMES)
+    return _gif(run, out_path, idx, dpi)
+
+
+def render_before_after(npz_path, out_path, frame_indices, labels, dpi=100) -> Path:
+    """Draw the chosen frames side by side as a PNG, each titled with its label (e.g. "before press",
+    "pressed", "after release"). Frame indices may be negative (counting from the end)."""
+    out_path = Path(out_path)
+    if _suffix_of(out_path) != ".png":
+        raise ValueError(f"unsupported output format '{out_path.suffix}' for a before/after picture: use .png")
+    labels = [str(s) for s in labels]
+    run = load_run(npz_path)
+    if isinstance(frame_indices, (int, np.integer)):
+        frame_indices = [frame_indices]
+    idx = select_frames(frame_indices, len(run["t"]), DEFAULT_PANELS)
+    if len(labels) != len(idx):
+        raise ValueError(f"{len(idx)} frame(s) but {len(labels)} label(s)")
+    return _panels_png(run, out_path, idx, labels, dpi, "")
