@@ -248,10 +248,26 @@ class _Painter:
         colours = _object_colours(run["n_objects"])
         self.colours = colours
         edges, cells = run["edges"], run["cells"]
-        self.edge_colours = colours[run["node_object"][edges[:, 0]]] if len(edges) else np.zeros((0, 4))
+        # Elements are grouped by object: each object's elements form one polyline of NaN-separated
+        # segments, one member of the (3D) line collection. Updating a few long paths per frame is far
+        # cheaper than one matplotlib Path per element.
+        edge_obj = run["node_object"][edges[:, 0]] if len(edges) else np.zeros(0, np.int64)
+        self.edge_groups = [(k, edges[edge_obj == k]) for k in np.unique(edge_obj)]
+        self.edge_colours = colours[[k for k, _ in self.edge_groups]] if self.edge_groups else np.zeros((0, 4))
         self.cell_colours = colours[run["cell_object"]] if len(cells) else np.zeros((0, 4))
         self.node_colours = colours[run["node_object"]]
         self.lw = _line_width(len(edges))
+
+    def segments(self, x: np.ndarray) -> list[np.ndarray]:
+        """One (3 E_k, D) polyline per object: start, end, NaN for each of its elements."""
+        out = []
+        for _, e in self.edge_groups:
+            seg = np.empty((len(e), 3, x.shape[1]))
+            seg[:, 0] = x[e[:, 0]]
+            seg[:, 1] = x[e[:, 1]]
+            seg[:, 2] = np.nan
+            out.append(seg.reshape(-1, x.shape[1]))
+        return out
 
     def setup_axes(self, ax):
         lo, hi, D = self.lo, self.hi, self.D
@@ -287,14 +303,14 @@ class _Painter:
                     x[cells], facecolors=self.cell_colours, edgecolors="none", alpha=0.25, zorder=1))
             if len(edges):
                 art["edges"] = ax.add_collection(LineCollection(
-                    x[edges], colors=self.edge_colours, linewidths=self.lw, zorder=2))
+                    self.segments(x), colors=self.edge_colours, linewidths=self.lw, zorder=2))
             else:
                 art["nodes"] = ax.scatter(x[:, 0], x[:, 1], s=6, c=self.node_colours, zorder=2)
             (art["pinned"],) = ax.plot(x[pinned, 0], x[pinned, 1], ls="none", marker="o", ms=3,
                                        color="k", zorder=3)
         else:
             if len(edges):
-                lc = Line3DCollection(x[edges], colors=self.edge_colours, linewidths=self.lw)
+                lc = Line3DCollection(self.segments(x), colors=self.edge_colours, linewidths=self.lw)
                 ax.add_collection3d(lc)
                 art["edges"] = lc
             else:
@@ -311,7 +327,7 @@ class _Painter:
         if "cells" in art:
             art["cells"].set_verts(x[run["cells"]])
         if "edges" in art:
-            art["edges"].set_segments(x[run["edges"]])
+            art["edges"].set_segments(self.segments(x))
         if "nodes" in art:
             art["nodes"].set_offsets(x)
         if "nodes3" in art:
@@ -349,7 +365,7 @@ def _write_atomically(out_path: Path, write) -> Path:
 
 def _panel_size(lo, hi, D: int, height: float) -> tuple[float, float]:
     if D == 3:
-        return height * 1.1, height
+        return height * 1.15, height * 1.1
     ratio = float(np.clip((hi[0] - lo[0]) / (hi[1] - lo[1]), 0.5, 3.0))
     return height * ratio + 0.6, height
 
@@ -383,7 +399,8 @@ def _panels_png(run: dict, out_path: Path, idx: list[int], titles: list[str], dp
                        fontsize="small", frameon=False)
         if suptitle:
             fig.suptitle(suptitle)
-        return _write_atomically(out_path, lambda tmp: fig.savefig(tmp, format="png", dpi=dpi))
+        return _write_atomically(out_path, lambda tmp: fig.savefig(tmp, format="png", dpi=dpi,
+                                                                 bbox_inches="tight", pad_inches=0.1))
     finally:
         plt.close(fig)
 
@@ -402,6 +419,7 @@ def _gif(run: dict, out_path: Path, idx: list[int], dpi: int) -> Path:
         if run["scene"]:
             fig.suptitle(run["scene"])
         fig.tight_layout()
+        fig.set_layout_engine(None)  # the layout is fixed now: no layout pass before every frame
         t = run["t"]
         duration = float(t[idx[-1]] - t[idx[0]])
         # real time when that gives a watchable rate, else clamped to 5..30 frames per second
