@@ -2,7 +2,7 @@
 
 For each cell vertex P_k and its opposite facet (edge P_i P_j in 2D, triangle P_i P_j P_l in 3D):
 n is the facet's unit normal on the side where P_k lies at rest, d = (x_k - x_i) . n the signed
-distance, w the barycentric weights of the foot of P_k on the facet (clipped to the facet), and
+distance, w the barycentric weights of the foot of P_k on the facet (w_1.. clipped to [0, 1], w_0 the rest), and
 ddot = (v_k - sum w v) . n the normal speed of P_k relative to its foot point (exact in 2D).
 
     f = 0                               if d > eps
@@ -42,8 +42,9 @@ def foot_weights(xp: np.ndarray, xf: np.ndarray, n: np.ndarray) -> np.ndarray:
 
 
 def clip_weights(w: np.ndarray) -> np.ndarray:
-    w = np.clip(w, 0.0, None)
-    return w / w.sum(1, keepdims=True)
+    """Clip the foot onto the facet without a division: w_1.. in [0, 1], w_0 = 1 - sum of the others."""
+    rest = np.clip(w[:, 1:], 0.0, 1.0)
+    return np.concatenate([1.0 - rest.sum(1, keepdims=True), rest], 1)
 
 
 def topology_forces(x, v, pairs, K, C, eps, out):

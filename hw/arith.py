@@ -1,0 +1,206 @@
+"""Two arithmetics for one datapath: float64 (records ranges) and bit-true fixed point.
+
+The datapath (hw/datapath.py) is written once against this interface. Every value is a `V`: an array
+and the name of the quantity it holds. Every operation names the quantity of its result; in fixed point
+that name selects the result's format (hw/formats.py), so rounding and saturation happen exactly where
+the hardware rounds and saturates.
+
+- `FloatArith` computes in float64 and records the largest magnitude of every quantity (range analysis).
+- `FixedArith` computes on raw int64 integers with the formats of a `FormatSet`, rounding to nearest
+  (ties up) and saturating with a count per quantity (hw/fixed.py).
+"""
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+
+import numpy as np
+
+from .fixed import Saturations, Shape, add, mul, round_into, shift_round
+
+
+@dataclass
+class V:
+    x: np.ndarray     # float values, or raw integers in the format of quantity q
+    q: str
+
+
+class FloatArith:
+    """float64 arithmetic; `peak[q]` is the largest |value| seen for quantity q."""
+    exact = True
+
+    def __init__(self):
+        self.peak = defaultdict(float)
+
+    def _rec(self, q, x):
+        x = np.asarray(x, float)
+        if x.size:
+            m = float(np.max(np.abs(x)))
+            if m > self.peak[q]:
+                self.peak[q] = m
+        return V(x, q)
+
+    def const(self, q, value):
+        return self._rec(q, value)
+
+    def state(self, q, x):
+        return self._rec(q, x)
+
+    def value(self, v: V) -> np.ndarray:
+        return v.x
+
+    def take(self, v, idx):
+        return V(v.x[idx], v.q)
+
+    def mul(self, a, b, q):
+        return self._rec(q, a.x * b.x)
+
+    def add(self, a, b, q):
+        return self._rec(q, a.x + b.x)
+
+    def sub(self, a, b, q):
+        return self._rec(q, a.x - b.x)
+
+    def sum(self, terms, q):
+        s = terms[0].x
+        for t in terms[1:]:
+            s = s + t.x
+        return self._rec(q, s)
+
+    def neg(self, a):
+        return V(-a.x, a.q)
+
+    def convert(self, a, q):
+        return self._rec(q, a.x)
+
+    def rsqrt(self, a, q):
+        return self._rec(q, 1.0 / np.sqrt(a.x))
+
+    def damper(self, f, table):
+        c2 = np.clip(table.A * np.exp(-table.B * f.x), table.c_min, table.c_max)
+        c12 = table.c1 + c2
+        return self._rec("c2", c2), self._rec("c12", c12), self._rec("ic12", 1.0 / c12)
+
+    def le(self, a, b):
+        return a.x <= b.x
+
+    def lt(self, a, b):
+        return a.x < b.x
+
+    def select(self, cond, a, b):
+        """cond ? a : b, in a's quantity."""
+        return V(np.where(cond, a.x, b.x), a.q)
+
+    def zeros(self, q, n):
+        return V(np.zeros(n), q)
+
+    def scatter(self, parts, n, q):
+        """Sum of (values, node indices) contributions per node."""
+        out = np.zeros(n)
+        for v, idx in parts:
+            out += np.bincount(idx, weights=v.x, minlength=n)
+        return self._rec(q, out)
+
+
+class FixedArith:
+    """Bit-true fixed-point arithmetic with the formats of `fmt` (quantity -> Shape)."""
+    exact = False
+
+    def __init__(self, fmt: dict, units: dict | None = None, sat: Saturations | None = None):
+        self.fmt = fmt
+        self.units = units or {}          # function units by name: "rsqrt", "damper"
+        self.sat = sat if sat is not None else Saturations()
+        self._consts = {}
+
+    def shape(self, q) -> Shape:
+        try:
+            return self.fmt[q]
+        except KeyError:
+            raise KeyError(f"no number format for quantity '{q}'") from None
+
+    def const(self, q, value):
+        key = (q, id(value)) if isinstance(value, np.ndarray) else (q, float(value))
+        if key not in self._consts:
+            self._consts[key] = V(self.shape(q).from_float(value, self.sat, q), q)
+        return self._consts[key]
+
+    def state(self, q, raw):
+        return V(np.asarray(raw, np.int64), q)
+
+    def value(self, v: V) -> np.ndarray:
+        return self.shape(v.q).to_float(v.x)
+
+    def take(self, v, idx):
+        return V(v.x[idx], v.q)
+
+    def mul(self, a, b, q):
+        return V(mul(a.x, self.shape(a.q), b.x, self.shape(b.q), self.shape(q), self.sat, q), q)
+
+    def add(self, a, b, q):
+        return V(add(a.x, self.shape(a.q), b.x, self.shape(b.q), self.shape(q), self.sat, q), q)
+
+    def sub(self, a, b, q):
+        return V(add(a.x, self.shape(a.q), b.x, self.shape(b.q), self.shape(q), self.sat, q, subtract=True), q)
+
+    def sum(self, terms, q):
+        f = max(self.shape(t.q).f for t in terms)
+        s = 0
+        for t in terms:
+            s = s + (np.asarray(t.x, np.int64) << (f - self.shape(t.q).f))
+        return V(round_into(s, f, self.shape(q), self.sat, q), q)
+
+    def neg(self, a):
+        return V(self.shape(a.q).saturate(-a.x, self.sat, a.q), a.q)
+
+    def convert(self, a, q):
+        return V(round_into(a.x, self.shape(a.q).f, self.shape(q), self.sat, q), q)
+
+    def rsqrt(self, a, q):
+        unit = self.units[q]
+        return V(unit(a.x, self.sat), q)
+
+    def damper(self, f, table):
+        unit = self.units["damper"]
+        c2, c12, ic = unit(f.x, self.sat)
+        return V(c2, "c2"), V(c12, "c12"), V(ic, "ic12")
+
+    def _aligned(self, a, b):
+        fa, fb = self.shape(a.q).f, self.shape(b.q).f
+        f = max(fa, fb)
+        return np.asarray(a.x, np.int64) << (f - fa), np.asarray(b.x, np.int64) << (f - fb)
+
+    def le(self, a, b):
+        x, y = self._aligned(a, b)
+        return x <= y
+
+    def lt(self, a, b):
+        x, y = self._aligned(a, b)
+        return x < y
+
+    def select(self, cond, a, b):
+        if b.q != a.q:
+            b = self.convert(b, a.q)
+        return V(np.where(cond, a.x, b.x), a.q)
+
+    def zeros(self, q, n):
+        return V(np.zeros(n, np.int64), q)
+
+    def scatter(self, parts, n, q):
+        """Per-node sums in an accumulator wide enough never to overflow, then one rounding into q.
+
+        Integer sums are order independent, so any hardware accumulation order gives these bits.
+        """
+        f = max(self.shape(v.q).f for v, _ in parts)
+        acc = np.zeros(n, np.int64)
+        for v, idx in parts:
+            acc += _bincount_int(idx, np.asarray(v.x, np.int64) << (f - self.shape(v.q).f), n)
+        return V(round_into(acc, f, self.shape(q), self.sat, q), q)
+
+
+def _bincount_int(idx, w, n):
+    """Exact integer bincount: split the weights into 26-bit halves so float64 sums stay exact."""
+    lo = w & ((1 << 26) - 1)
+    hi = w >> 26
+    s_lo = np.rint(np.bincount(idx, weights=lo.astype(float), minlength=n)).astype(np.int64)
+    s_hi = np.rint(np.bincount(idx, weights=hi.astype(float), minlength=n)).astype(np.int64)
+    return (s_hi << 26) + s_lo

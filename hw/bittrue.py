@@ -1,0 +1,119 @@
+"""The bit-true model: the hardware's step (hw/datapath.py) in NumPy integers with the scene's formats.
+
+`BitTrue(system, preset)` derives the number formats (range analysis of the float datapath over a golden
+run, hw/formats.py), builds the function units (hw/funcunits.py) and steps raw integer states exactly
+as the hardware will. It plugs into `golden.model.simulate` as a stepper; frames come back in SI units,
+and the raw states and saturation counts are kept for the run file.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from golden.model import System, frame_steps, simulate
+from .arith import FixedArith, FloatArith
+from .datapath import HwState, Params, step
+from .fixed import Saturations
+from .formats import PRESETS, FormatSet, derive
+from .units import HardwareUnits
+
+RSQRT_INPUTS = {"inv_l": "l2", "tinv": "tl2", "tinv2": "tl4", "finv": "fmag2"}
+
+
+def float_state(sys: System, units: HardwareUnits, x, v, a, f_prev=None, step_no=0) -> HwState:
+    X = units.length(x)
+    U = units.velocity(v)
+    fp = np.zeros(sys.n_elements) if f_prev is None else f_prev
+    return HwState([X[:, k].copy() for k in range(sys.dim)], [U[:, k].copy() for k in range(sys.dim)],
+                   np.asarray(a, float).copy(), fp, step_no)
+
+
+def range_analysis(sys: System, params: Params, units: HardwareUnits, run=None, max_frames=400) -> dict:
+    """Peak |value| of every datapath quantity, evaluated on the frames of a golden run."""
+    if run is None:
+        run = simulate(sys, every=max(1, sys.n_steps // max_frames))
+    ar = FloatArith()
+    for f in range(len(run.t)):
+        step_no = int(round(run.t[f] / sys.dt))
+        st = float_state(sys, units, run.x[f], run.v[f], run.a[f], step_no=step_no)
+        first = step(ar, st, params)                         # |T| of this state, for the damper input
+        st.FP = first.FP if params.damper is not None else st.FP
+        step(ar, st, params)
+    return dict(ar.peak)
+
+
+def function_units(fmt: FormatSet, params: Params) -> dict:
+    from .funcunits import DamperTable, Rsqrt
+    pre = fmt.preset
+    units = {}
+    for out, inp in RSQRT_INPUTS.items():
+        if out in fmt and inp in fmt:
+            units[out] = Rsqrt(fmt[inp], fmt[out], seed_bits=pre.rsqrt_seed_bits, newton_steps=pre.rsqrt_newton)
+    if params.damper is not None:
+        dp = params.damper
+        units["damper"] = DamperTable(fmt["force"], fmt["c2"], fmt["ic12"], dp.c1, dp.c_min, dp.c_max,
+                                      dp.f1, dp.f2, segments_log2=pre.damper_segments_log2)
+    return units
+
+
+class BitTrue:
+    """Steps a System bit for bit as the hardware does."""
+
+    def __init__(self, sys: System, preset: str = "wide", formats: FormatSet | None = None,
+                 overrides: dict | None = None, golden_run=None):
+        if preset not in PRESETS:
+            raise ValueError(f"unknown format preset '{preset}' (known: {', '.join(PRESETS)})")
+        self.sys = sys
+        self.units = HardwareUnits.of(sys)
+        self.params = Params.of(sys, self.units)
+        if formats is None:
+            peaks = range_analysis(sys, self.params, self.units, golden_run)
+            formats = derive(peaks, PRESETS[preset], overrides)
+        self.formats = formats
+        self.sat = Saturations()
+        self.ar = FixedArith(formats, function_units(formats, self.params), self.sat)
+
+    def initial_state(self) -> HwState:
+        sys, fm = self.sys, self.formats
+        X = self.units.length(sys.x0)
+        U = self.units.velocity(sys.v0)
+        return HwState([fm["x"].from_float(X[:, k], self.sat, "x") for k in range(sys.dim)],
+                       [fm["u"].from_float(U[:, k], self.sat, "u") for k in range(sys.dim)],
+                       fm["a"].from_float(sys.a0, self.sat, "a"),
+                       np.zeros(sys.n_elements, np.int64), 0)
+
+    def step(self, st: HwState) -> None:
+        new = step(self.ar, st, self.params)
+        st.X, st.U, st.A, st.FP, st.step = new.X, new.U, new.A, new.FP, new.step
+
+    def frame(self, st: HwState):
+        fm = self.formats
+        x = np.stack([self.units.to_length(fm["x"].to_float(c)) for c in st.X], 1)
+        v = np.stack([self.units.to_velocity(fm["u"].to_float(c)) for c in st.U], 1)
+        return x, v, fm["a"].to_float(st.A)
+
+    def raw(self, st: HwState):
+        return np.stack(st.X, 1), np.stack(st.U, 1), np.asarray(st.A).copy()
+
+
+def simulate_fixed(sys: System, preset="wide", steps=None, every=None, progress=False, golden_run=None):
+    """Run the bit-true model; returns (Run in SI units, raw frames dict, BitTrue)."""
+    bt = BitTrue(sys, preset, golden_run=golden_run)
+    raws = {"x_raw": [], "v_raw": [], "a_raw": [], "saturations": []}
+
+    class Recorder:
+        def initial_state(self):
+            return bt.initial_state()
+
+        def step(self, st):
+            bt.step(st)
+
+        def frame(self, st):
+            x, u, a = bt.raw(st)
+            raws["x_raw"].append(x)
+            raws["v_raw"].append(u)
+            raws["a_raw"].append(a)
+            raws["saturations"].append(bt.sat.total)
+            return bt.frame(st)
+
+    run = simulate(sys, steps=steps, every=every, progress=progress, stepper=Recorder())
+    return run, {k: np.asarray(v) for k, v in raws.items()}, bt

@@ -1,0 +1,158 @@
+"""Number formats of every quantity the hardware holds or computes, derived from the scene.
+
+One place defines them: each quantity named in hw/datapath.py gets a fixed-point format here.
+- Word widths come from a preset: `state` words (positions, velocities, a), `operand` words (multiplier
+  inputs and products), and the node force accumulator (operand + `acc_guard` bits).
+- Binary points come from range analysis: the float datapath is run over the scene and the peak |value|
+  of each quantity, times a headroom, sets its integer bits; the rest of the word is fraction.
+  a, unit vectors and weights have fixed ranges ([0, 1] / [-1, 1]) and fixed formats.
+- Parameters (k1, c1, ...) are constants fitted to their own value with operand-width words.
+Function units are configured per preset too (rsqrt seed bits and Newton steps, damper table size).
+A scene may override any quantity's format in its [formats] table, e.g. `x = "SQ(2, 30)"`.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+from .fixed import SQ, Shape
+
+# quantity -> (word class, what it is)
+QUANTITIES = {
+    "x": ("state", "position, length units"),
+    "u": ("state", "velocity as displacement per step"),
+    "dv": ("state", "velocity increment of a step (mu F)"),
+    "a": ("fixed_state", "Voigt fraction of an element, in [0, 1]"),
+    "d": ("operand", "edge vector component x_j - x_i"),
+    "du": ("operand", "relative velocity component"),
+    "l2": ("operand", "squared edge length"),
+    "inv_l": ("operand", "1 / edge length (rsqrt unit)"),
+    "l": ("operand", "edge length, and a l"),
+    "e": ("fixed_operand", "unit vector component"),
+    "ldot": ("operand", "stretch rate"),
+    "s": ("operand", "Voigt extension a l - L"),
+    "force": ("operand", "element tension T, k1 s, numerator of adot, |T_prev|, penalty forces"),
+    "c2": ("operand", "damper coefficients c2 and c1 + c2, and c2 - (c1 + c2) a"),
+    "ic12": ("operand", "1 / (c1 + c2)"),
+    "num_ic": ("operand", "numerator / (c1 + c2)"),
+    "adot": ("operand", "rate of a per step"),
+    "sdot": ("operand", "Voigt stretch rate adot l + a ldot"),
+    "fe": ("operand", "force vector component of an element or pair"),
+    "facc": ("accumulator", "node force accumulator"),
+    "tr": ("operand", "topology: facet edge and vertex offsets"),
+    "tl2": ("operand", "topology: squared lengths, dot products, cross product components"),
+    "tl4": ("operand", "topology (3D): squared cross product and weight numerators"),
+    "tinv": ("operand", "topology (2D): 1 / facet length"),
+    "tinv2": ("operand", "topology (3D): 1 / |cross product|"),
+    "tinv4": ("operand", "topology (3D): 1 / |cross product|^2"),
+    "tdist": ("operand", "signed distances and projections"),
+    "w": ("fixed_operand", "foot weights and ratios, in [0, 1]"),
+    "fmag2": ("operand", "friction: squared tangential force"),
+    "finv": ("operand", "friction: 1 / |tangential force|"),
+}
+# the c12 quantity shares the c2 format (the damper table returns both in one format)
+ALIASES = {"c12": "c2"}
+# constants: fitted to their own value
+CONSTANTS = {"L": "l", "k1": None, "c1": None, "c1a": None, "eps": None, "topo_K": None, "topo_C": None,
+             "floor_K": None, "floor_C": None, "floor_kf": None, "mu": None, "inv_mass": None, "g": None,
+             "load": "facc"}
+
+
+@dataclass(frozen=True)
+class Preset:
+    name: str
+    state: int
+    operand: int
+    acc_guard: int = 6
+    headroom_bits: int = 2
+    rsqrt_seed_bits: int = 9
+    rsqrt_newton: int = 1
+    damper_segments_log2: int = 6
+    description: str = ""
+
+
+PRESETS = {
+    "narrow": Preset("narrow", 18, 18, rsqrt_seed_bits=9, rsqrt_newton=1, damper_segments_log2=6,
+                     description="DSP-native: 18-bit words everywhere (one 18x18 multiplier per product)"),
+    "medium": Preset("medium", 27, 18, rsqrt_seed_bits=9, rsqrt_newton=1, damper_segments_log2=8,
+                     description="27-bit states, 18-bit multiplier operands"),
+    "wide": Preset("wide", 32, 27, rsqrt_seed_bits=10, rsqrt_newton=2, damper_segments_log2=10,
+                   description="32-bit states, 27-bit operands"),
+}
+
+
+def _int_bits(peak: float, headroom_bits: int) -> int:
+    """Integer bits (with sign) holding +/- peak * 2^headroom_bits."""
+    if peak <= 0 or not math.isfinite(peak):
+        return 1
+    return math.floor(math.log2(peak)) + 1 + headroom_bits + 1
+
+
+def fit(value_peak: float, width: int, headroom_bits: int = 0) -> Shape:
+    i = _int_bits(value_peak, headroom_bits)
+    return SQ(i, width - i)
+
+
+_SHAPE_RE = re.compile(r"^\s*(SQ|UQ)\s*\(\s*(-?\d+)\s*,\s*(-?\d+)\s*\)\s*$")
+
+
+def parse_shape(text: str) -> Shape:
+    m = _SHAPE_RE.match(str(text))
+    if not m:
+        raise ValueError(f"format must look like SQ(i, f) or UQ(i, f), got {text!r}")
+    from .fixed import UQ
+    return (SQ if m.group(1) == "SQ" else UQ)(int(m.group(2)), int(m.group(3)))
+
+
+@dataclass
+class FormatSet:
+    preset: Preset
+    shapes: dict = field(default_factory=dict)      # quantity -> Shape
+    peaks: dict = field(default_factory=dict)       # quantity -> peak |value| seen in range analysis
+
+    def __getitem__(self, q) -> Shape:
+        return self.shapes[ALIASES.get(q, q)]
+
+    def __contains__(self, q) -> bool:
+        return ALIASES.get(q, q) in self.shapes
+
+    def keys(self):
+        return list(self.shapes) + list(ALIASES)
+
+    def to_dict(self) -> dict:
+        return {q: {**s.to_dict(), "format": str(s), "peak": self.peaks.get(q)} for q, s in self.shapes.items()}
+
+
+def derive(peaks: dict, preset: Preset, overrides: dict | None = None) -> FormatSet:
+    """Formats for every quantity seen in the range analysis (`peaks`: quantity -> max |value|)."""
+    fs = FormatSet(preset, peaks=dict(peaks))
+    ws, wo = preset.state, preset.operand
+    for q, (cls, _) in QUANTITIES.items():
+        if q not in peaks and q not in ("a", "e", "w"):
+            continue
+        peak = max(peaks.get(q, 0.0), peaks.get(next((k for k, v in ALIASES.items() if v == q), ""), 0.0))
+        if cls == "state":
+            fs.shapes[q] = fit(peak, ws, preset.headroom_bits)
+        elif cls == "fixed_state":
+            fs.shapes[q] = SQ(2, ws - 2)
+        elif cls == "fixed_operand":
+            fs.shapes[q] = SQ(2, wo - 2)
+        elif cls == "accumulator":
+            fs.shapes[q] = fit(peak, wo + preset.acc_guard, preset.headroom_bits + preset.acc_guard)
+        else:
+            fs.shapes[q] = fit(peak, wo, preset.headroom_bits)
+    for q, like in CONSTANTS.items():
+        if q not in peaks:
+            continue
+        if like is not None and like in fs.shapes:
+            fs.shapes[q] = fs.shapes[like]
+        else:
+            width = ws if q == "g" else wo
+            fs.shapes[q] = fit(peaks[q], width, 0)
+    # the floor height and thresholds are compared with positions/distances: keep them in those formats
+    for q, shape in (overrides or {}).items():
+        if q not in QUANTITIES and q not in CONSTANTS:
+            raise ValueError(f"[formats] names an unknown quantity '{q}' (known: {', '.join(sorted(QUANTITIES))})")
+        fs.shapes[q] = shape if isinstance(shape, Shape) else parse_shape(shape)
+    return fs
