@@ -28,6 +28,7 @@ from matplotlib.animation import PillowWriter  # noqa: E402
 from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection  # noqa: E402
+from PIL import Image  # noqa: E402  (a matplotlib dependency)
 
 RENDER_KEYS = ("t", "x", "edges", "cells", "node_object", "pinned")
 DEFAULT_PANELS = 4
@@ -363,11 +364,15 @@ def _write_atomically(out_path: Path, write) -> Path:
     return out_path
 
 
-def _panel_size(lo, hi, D: int, height: float) -> tuple[float, float]:
+def _panel_size(lo, hi, D: int, size: float) -> tuple[float, float]:
+    """Figure inches for one panel of nominal size `size`: the data box keeps its aspect within a
+    bounded panel (at most 1.5 size wide, at least 0.5 size high), plus room for the labels."""
     if D == 3:
-        return height * 1.15, height * 1.1
-    ratio = float(np.clip((hi[0] - lo[0]) / (hi[1] - lo[1]), 0.5, 3.0))
-    return height * ratio + 0.6, height
+        return size * 1.15, size * 1.1
+    ratio = float((hi[0] - lo[0]) / (hi[1] - lo[1]))
+    width = float(np.clip(size * ratio, 0.75 * size, 1.5 * size))
+    height = float(np.clip(width / ratio, 0.5 * size, 1.25 * size))
+    return width + 0.7, height + 0.6
 
 
 def _legend_handles(run: dict, painter: _Painter):
@@ -384,7 +389,7 @@ def _panels_png(run: dict, out_path: Path, idx: list[int], titles: list[str], dp
     painter = _Painter(run, lo, hi)
     pw, ph = _panel_size(lo, hi, D, 3.2)
     n = len(idx)
-    fig = plt.figure(figsize=(pw * n, ph + 0.8), layout="constrained")
+    fig = plt.figure(figsize=(pw * n, ph + 0.5), layout="constrained")
     try:
         for i, (f, title) in enumerate(zip(idx, titles)):
             ax = fig.add_subplot(1, n, i + 1, projection="3d" if D == 3 else None)
@@ -405,12 +410,23 @@ def _panels_png(run: dict, out_path: Path, idx: list[int], titles: list[str], dp
         plt.close(fig)
 
 
+class _OctreePillowWriter(PillowWriter):
+    """PillowWriter that reduces each frame to a 256-colour palette with Pillow's fast octree quantizer
+    as it is grabbed; Pillow's default (median cut, at save time) dominated the time of a long GIF."""
+
+    def grab_frame(self, **savefig_kwargs):
+        super().grab_frame(**savefig_kwargs)
+        frames = getattr(self, "_frames", None)
+        if frames and frames[-1].mode == "RGB":
+            frames[-1] = frames[-1].quantize(256, method=Image.Quantize.FASTOCTREE)
+
+
 def _gif(run: dict, out_path: Path, idx: list[int], dpi: int) -> Path:
     D = run["dim"]
     lo, hi = _limits(run, idx)
     painter = _Painter(run, lo, hi)
     pw, ph = _panel_size(lo, hi, D, 4.5)
-    fig = plt.figure(figsize=(pw, ph + 0.4))
+    fig = plt.figure(figsize=(pw, ph + 0.5))
     try:
         ax = fig.add_subplot(1, 1, 1, projection="3d" if D == 3 else None)
         painter.setup_axes(ax)
@@ -426,7 +442,7 @@ def _gif(run: dict, out_path: Path, idx: list[int], dpi: int) -> Path:
         fps = float(np.clip((len(idx) - 1) / duration, 5, 30)) if duration > 0 and len(idx) > 1 else 10.0
 
         def write(tmp):
-            writer = PillowWriter(fps=fps)
+            writer = _OctreePillowWriter(fps=fps)
             with writer.saving(fig, tmp, dpi):
                 for f in idx:
                     painter.update(art, f)

@@ -101,6 +101,24 @@ def test_png_is_written_and_shows_the_elements(scene, tmp_path):
             assert _colour_pixels(img, TAB10_C1) > 50
 
 
+def test_png_draws_floor_and_pinned_nodes(tmp_path):
+    def count(arrays, name, rgb, tol):
+        with Image.open(render(write_npz(tmp_path, name, arrays), tmp_path / f"{name}.png")) as img:
+            return _colour_pixels(img, np.array(rgb), tol)
+
+    grey = (128, 128, 128)
+    with_floor = strip_2d()
+    without_floor = strip_2d()
+    without_floor["floor_height"] = np.float64(np.nan)
+    # the floor is a grey line across each of the 4 panels (limits differ a little, hence the margin)
+    assert count(with_floor, "floor", grey, 3) > count(without_floor, "nofloor", grey, 3) + 300
+
+    pinned = chain_2d()
+    free = chain_2d()
+    free["pinned"][:] = False  # same limits and ticks, only the markers differ
+    assert count(pinned, "pinned", (0, 0, 0), 10) > count(free, "free", (0, 0, 0), 10) + 20
+
+
 def test_png_frames_choose_the_panels(tmp_path):
     npz = write_npz(tmp_path, "strip", strip_2d())
     widths = {}
@@ -150,10 +168,17 @@ def test_gif_is_an_animation_of_every_frame(scene, tmp_path):
         assert np.any(first != last)  # the moving node and the time label change
 
 
-def test_gif_is_subsampled_to_at_most_200_frames(tmp_path):
-    npz = write_npz(tmp_path, "chain", chain_2d(n_frames=230))
+def test_gif_is_subsampled_to_at_most_max_frames(tmp_path, monkeypatch):
+    import sim.render
+
+    assert sim.render.MAX_GIF_FRAMES == 200
+    # a 200-frame GIF takes seconds: check the subsampling with a smaller cap
+    monkeypatch.setattr(sim.render, "MAX_GIF_FRAMES", 10)
+    npz = write_npz(tmp_path, "chain", chain_2d(n_frames=23))
     with Image.open(render(npz, tmp_path / "long.gif")) as img:
-        assert 150 <= img.n_frames <= 200
+        assert img.n_frames == 10
+    with Image.open(render(npz, tmp_path / "chosen.gif", frames=[0, 5, 22])) as img:
+        assert img.n_frames == 3
 
 
 # ------------------------------------------------------------------------------------------- errors
