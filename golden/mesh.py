@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from itertools import combinations, product
+from pathlib import Path
 
 import numpy as np
 
@@ -132,13 +133,20 @@ def box(size, divisions) -> Mesh:
 
 def from_file(path, dim: int, scale: float = 1.0) -> Mesh:
     """Read triangles (dim 2) or tetrahedra (dim 3) with meshio; orientation is made positive."""
+    import contextlib
+    import io
     import meshio
+    chatter = io.StringIO()   # meshio prints its reader errors and, when no reader fits, calls sys.exit(1)
     try:
-        m = meshio.read(path)
+        with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
+            m = meshio.read(path)
     except FileNotFoundError:
         raise MeshError(f"mesh file not found: {path}") from None
-    except Exception as exc:  # meshio raises many types for unreadable files
-        raise MeshError(f"cannot read mesh file {path}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+    except (Exception, SystemExit) as exc:  # meshio raises many types for unreadable files
+        said = [ln.strip() for ln in chatter.getvalue().split("Error:")[0].splitlines() if ln.strip()]
+        why = (str(exc).splitlines()[0] if str(exc) and not isinstance(exc, SystemExit)
+               else said[0] if said else f"not a readable {Path(path).suffix or 'mesh'} file")
+        raise MeshError(f"cannot read mesh file {path}: {why}") from None
     kind = "triangle" if dim == 2 else "tetra"
     blocks = [c.data for c in m.cells if c.type == kind]
     if not blocks:

@@ -234,7 +234,7 @@ def _material(chk: _Tables, tbl, where) -> dict:
     chk.keys(tbl, where, (), _MATERIAL_KEYS)
     mat = {}
     if "preset" in tbl:
-        if tbl["preset"] not in PRESETS:
+        if not isinstance(tbl["preset"], str) or tbl["preset"] not in PRESETS:
             chk.fail(where, f"unknown preset {tbl['preset']!r} (known: {', '.join(PRESETS)})")
         mat.update(PRESETS[tbl["preset"]])
     user_nl = [k for k in _NONLINEAR if k in tbl]
@@ -311,13 +311,15 @@ def compile_scene(scene: Scene) -> System:
     chk.keys(d, "", ("dim", "integrator", "objects"),
              ("name", "description", "world", "topology", "collision", "loads"))
     dim = d["dim"]
-    if dim not in (2, 3) or isinstance(dim, bool):
+    if isinstance(dim, bool) or not isinstance(dim, int) or dim not in (2, 3):
         chk.fail("", f"'dim' must be 2 or 3, got {dim!r}")
 
     integ = d["integrator"]
     chk.keys(integ, "integrator", ("dt", "duration"), ("output_every",))
     dt = chk.number(integ, "dt", "integrator", lo=0, lo_open=True)
     duration = chk.number(integ, "duration", "integrator", lo=0, lo_open=True)
+    if not duration / dt < 2**53:
+        chk.fail("integrator", f"'duration' / 'dt' = {duration / dt:g} steps is too many")
     n_steps = max(1, int(round(duration / dt)))
     every = chk.integer(integ, "output_every", "integrator", default=max(1, n_steps // 200))
 
@@ -332,7 +334,7 @@ def compile_scene(scene: Scene) -> System:
                       chk.number(fl, "K", "world.floor", lo=0, lo_open=True),
                       chk.number(fl, "C", "world.floor", default=0.0, lo=0),
                       chk.number(fl, "mu", "world.floor", default=0.0, lo=0),
-                      chk.number(fl, "k_f", "world.floor", default=100.0, lo=0, lo_open=True))
+                      chk.number(fl, "k_f", "world.floor", default=math.nan, lo=0, lo_open=True))
 
     objs = d["objects"]
     if not isinstance(objs, list) or not objs:
@@ -368,8 +370,8 @@ def compile_scene(scene: Scene) -> System:
             mnode = np.bincount(m.cells.ravel(), weights=np.repeat(share, dim + 1), minlength=n)
         else:
             chk.fail(f"{where}.material", "no mass: give 'density' or 'node_mass' here, or the object's 'masses'")
-        if not np.all(np.isfinite(mnode)) or np.any(mnode <= 0):
-            k = int(np.flatnonzero(~(mnode > 0))[0]) if np.any(~(mnode > 0)) else 0
+        if not np.all(np.isfinite(mnode) & (mnode > 0)):
+            k = int(np.flatnonzero(~(np.isfinite(mnode) & (mnode > 0)))[0])
             chk.fail(where, f"node {k} has mass {mnode[k]:g}: every node needs a positive, finite mass")
         pin = np.zeros(n, bool)
         if "pinned" in obj:
@@ -427,7 +429,13 @@ def compile_scene(scene: Scene) -> System:
                                   chk.number(co, "C", "collision", default=0.0, lo=0),
                                   chk.number(co, "threshold", "collision", lo=0, lo_open=True),
                                   chk.number(co, "mu", "collision", default=0.0, lo=0),
-                                  chk.number(co, "k_f", "collision", default=100.0, lo=0, lo_open=True))
+                                  chk.number(co, "k_f", "collision", default=math.nan, lo=0, lo_open=True))
+
+    # default friction regularisation: m_min / dt, half the explicit limit 2 m / dt of a damper on m
+    kf_default = float(cat(mass).min()) / dt
+    for holder in (floor, collision):
+        if holder is not None and math.isnan(holder.k_f):
+            holder.k_f = kf_default
 
     loads = []
     lds = d.get("loads", [])
