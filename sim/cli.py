@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 
 DEFAULT_SCENE = "press-2d-rheological"
-BACKENDS = ("golden",)
+BACKENDS = ("golden", "fixed")
+PRESETS = ("narrow", "medium", "wide")
 
 
 class UsageError(Exception):
@@ -31,12 +32,22 @@ def _load_system(ref: str):
     return compile_scene(load_scene(ref))
 
 
-def _simulate(sys_, backend: str, steps, every, progress=True):
+def _simulate(sys_, backend: str, steps, every, progress=True, preset="wide"):
+    """Run a backend; returns (Run, extra run-file arrays)."""
     from golden.model import simulate
-    if backend != "golden":
+    if backend not in BACKENDS:
         raise UsageError(f"backend '{backend}' is not available (available: {', '.join(BACKENDS)})")
     with np.errstate(over="ignore", invalid="ignore"):
-        return simulate(sys_, steps=steps, every=every, progress=progress)
+        if backend == "golden":
+            return simulate(sys_, steps=steps, every=every, progress=progress), {}
+        from hw.bittrue import simulate_fixed
+        run, raws, bt = simulate_fixed(sys_, preset, steps=steps, every=every, progress=progress)
+        names = sorted(bt.sat)
+        extra = dict(raws, preset=np.str_(preset), formats=np.str_(json.dumps(bt.formats.to_dict())),
+                     saturation_names=np.array(names, dtype=str),
+                     saturation_counts=np.array([bt.sat[n] for n in names], np.int64),
+                     units=np.str_(json.dumps(bt.units.to_dict())))
+        return run, extra
 
 
 # ---------------------------------------------------------------- commands
@@ -54,8 +65,8 @@ def cmd_simulate(args) -> int:
     if not args.out.endswith(".npz"):
         raise UsageError(f"--out must name a .npz file, got '{args.out}'")
     sys_ = _load_system(args.scene)
-    run = _simulate(sys_, args.backend, args.steps, args.every)
-    runfile.save(args.out, runfile.run_arrays(sys_, run, args.backend))
+    run, extra = _simulate(sys_, args.backend, args.steps, args.every, preset=args.preset)
+    runfile.save(args.out, {**runfile.run_arrays(sys_, run, args.backend), **extra})
     steps = int(round(run.t[-1] / sys_.dt))
     print(f"{sys_.name}: {steps} steps of {sys_.dt:g} s "
           f"({run.t[-1]:g} s simulated) in {run.wall_seconds:.2f} s wall, {len(run.t)} frames -> {args.out}")
@@ -100,7 +111,7 @@ def cmd_run(args) -> int:
     sys_ = _load_system(args.scene)
     print(f"[1/4] simulating {sys_.name}: {sys_.n_nodes} nodes, {sys_.n_elements} elements, "
           f"{sys_.n_steps} steps of {sys_.dt:g} s (golden, float64)")
-    run = _simulate(sys_, "golden", None, None)
+    run, _ = _simulate(sys_, "golden", None, None)
     npz = runfile.save(out / f"{sys_.name}.npz", runfile.run_arrays(sys_, run, "golden"))
     print(f"      {run.wall_seconds:.2f} s wall -> {npz}")
     print("[2/4] rendering frames")
@@ -141,6 +152,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--backend", default="golden", choices=BACKENDS, help="model to run (default: golden)")
     s.add_argument("--steps", type=_positive_int, help="number of steps (default: the scene's duration / dt)")
     s.add_argument("--every", type=_positive_int, help="record every K-th step (default: the scene's output_every)")
+    s.add_argument("--preset", default="wide", choices=PRESETS,
+                   help="number-format preset of the fixed backend (default: wide)")
     s.add_argument("--out", required=True, help="output .npz file")
     s.set_defaults(func=cmd_simulate)
 
