@@ -168,12 +168,12 @@ class Run:
     wall_seconds: float = 0.0
 
 
-def check_finite(sys: System, st: State) -> None:
-    if not (np.isfinite(st.x).all() and np.isfinite(st.v).all() and np.isfinite(st.a).all()):
-        bad = np.flatnonzero(~np.isfinite(st.x).all(1) | ~np.isfinite(st.v).all(1))
+def check_finite(sys: System, x, v, a, step: int) -> None:
+    if not (np.isfinite(x).all() and np.isfinite(v).all() and np.isfinite(a).all()):
+        bad = np.flatnonzero(~np.isfinite(x).all(1) | ~np.isfinite(v).all(1))
         where = f" (node {bad[0]})" if bad.size else ""
         raise SimulationDiverged(
-            f"scene '{sys.name}' diverged at step {st.step} (t = {st.step * sys.dt:.6g} s){where}: "
+            f"scene '{sys.name}' diverged at step {step} (t = {step * sys.dt:.6g} s){where}: "
             f"the state is no longer finite; reduce dt (now {sys.dt:g} s) or stiffen less")
 
 
@@ -206,7 +206,7 @@ def simulate(sys: System, steps: int | None = None, every: int | None = None,
                 bar.update(256)
         x, v, a = stepper.frame(st) if hasattr(stepper, "frame") else (st.x, st.v, st.a)
         xs[f], vs[f], as_[f] = x, v, a
-        check_finite(sys, State(xs[f], vs[f], as_[f], st.f_prev, st.step))
+        check_finite(sys, xs[f], vs[f], as_[f], st.step)
     if bar is not None:
         bar.close()
     return Run(at * sys.dt, xs, vs, as_, time.perf_counter() - t0)

@@ -38,7 +38,13 @@ def range_analysis(sys: System, params: Params, units: HardwareUnits, run=None, 
         first = step(ar, st, params)                         # |T| of this state, for the damper input
         st.FP = first.FP if params.damper is not None else st.FP
         step(ar, st, params)
-    return dict(ar.peak)
+    peaks = dict(ar.peak)
+    if params.damper is not None:      # the tables span the whole curve, whatever the run visited
+        dp = params.damper
+        peaks["c2"] = max(peaks.get("c2", 0.0), dp.c1 + dp.c_max)
+        peaks["ic12"] = max(peaks.get("ic12", 0.0), 1.0 / (dp.c1 + dp.c_min))
+        peaks["force"] = max(peaks.get("force", 0.0), dp.f2)
+    return peaks
 
 
 def function_units(fmt: FormatSet, params: Params) -> dict:
@@ -47,7 +53,8 @@ def function_units(fmt: FormatSet, params: Params) -> dict:
     units = {}
     for out, inp in RSQRT_INPUTS.items():
         if out in fmt and inp in fmt:
-            units[out] = Rsqrt(fmt[inp], fmt[out], seed_bits=pre.rsqrt_seed_bits, newton_steps=pre.rsqrt_newton)
+            units[out] = Rsqrt(fmt[inp], fmt[out], seed_bits=pre.rsqrt_seed_bits, newton_steps=pre.rsqrt_newton,
+                               name=out)
     if params.damper is not None:
         dp = params.damper
         units["damper"] = DamperTable(fmt["force"], fmt["c2"], fmt["ic12"], dp.c1, dp.c_min, dp.c_max,
