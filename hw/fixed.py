@@ -14,6 +14,7 @@ Sums align both operands to the finer binary point (exact left shifts), add, the
 """
 from __future__ import annotations
 
+import functools
 from collections import Counter
 from dataclasses import dataclass
 
@@ -76,12 +77,19 @@ class Shape:
         return np.asarray(raw, np.int64) * self.lsb
 
     def saturate(self, raw: np.ndarray, sat: "Saturations | None" = None, name: str = "") -> np.ndarray:
-        lo, hi = self.min_raw, self.max_raw
+        raw = np.asarray(raw)
+        if raw.size == 0:
+            return raw
+        lo, hi = self._bounds
+        if raw.max() <= hi and raw.min() >= lo:       # the common case: nothing to clamp
+            return raw
         if sat is not None:
-            n = int(np.count_nonzero((raw < lo) | (raw > hi)))
-            if n:
-                sat.add(name, n)
-        return np.clip(raw, lo, hi)
+            sat.add(name, int(np.count_nonzero((raw < lo) | (raw > hi))))
+        return np.minimum(np.maximum(raw, lo), hi)
+
+    @functools.cached_property
+    def _bounds(self):
+        return self.min_raw, self.max_raw
 
 
 def SQ(i: int, f: int) -> Shape:
