@@ -27,17 +27,16 @@ def float_state(sys: System, units: HardwareUnits, x, v, a, f_prev=None, step_no
                    np.asarray(a, float).copy(), fp, step_no)
 
 
-def range_analysis(sys: System, params: Params, units: HardwareUnits, run=None, max_frames=400) -> dict:
-    """Peak |value| of every datapath quantity, evaluated on the frames of a golden run."""
-    if run is None:
-        run = simulate(sys, every=max(1, sys.n_steps // max_frames))
+def range_analysis(sys: System, params: Params, units: HardwareUnits, steps: int | None = None) -> dict:
+    """Peak |value| of every datapath quantity over every step of the float datapath.
+
+    The float datapath equals the golden model up to float rounding (tests/test_datapath.py), so this
+    is the range analysis of a golden run, including short transients such as impacts.
+    """
     ar = FloatArith()
-    for f in range(len(run.t)):
-        step_no = int(round(run.t[f] / sys.dt))
-        st = float_state(sys, units, run.x[f], run.v[f], run.a[f], step_no=step_no)
-        first = step(ar, st, params)                         # |T| of this state, for the damper input
-        st.FP = first.FP if params.damper is not None else st.FP
-        step(ar, st, params)
+    st = float_state(sys, units, sys.x0, sys.v0, sys.a0)
+    for _ in range(sys.n_steps if steps is None else steps):
+        st = step(ar, st, params)
     peaks = dict(ar.peak)
     if params.damper is not None:      # the tables span the whole curve, whatever the run visited
         dp = params.damper
@@ -66,14 +65,14 @@ class BitTrue:
     """Steps a System bit for bit as the hardware does."""
 
     def __init__(self, sys: System, preset: str = "wide", formats: FormatSet | None = None,
-                 overrides: dict | None = None, golden_run=None):
+                 overrides: dict | None = None, range_steps: int | None = None):
         if preset not in PRESETS:
             raise ValueError(f"unknown format preset '{preset}' (known: {', '.join(PRESETS)})")
         self.sys = sys
         self.units = HardwareUnits.of(sys)
         self.params = Params.of(sys, self.units)
         if formats is None:
-            peaks = range_analysis(sys, self.params, self.units, golden_run)
+            peaks = range_analysis(sys, self.params, self.units, range_steps)
             formats = derive(peaks, PRESETS[preset], overrides)
         self.formats = formats
         self.sat = Saturations()
@@ -102,9 +101,9 @@ class BitTrue:
         return np.stack(st.X, 1), np.stack(st.U, 1), np.asarray(st.A).copy()
 
 
-def simulate_fixed(sys: System, preset="wide", steps=None, every=None, progress=False, golden_run=None):
+def simulate_fixed(sys: System, preset="wide", steps=None, every=None, progress=False, bittrue=None):
     """Run the bit-true model; returns (Run in SI units, raw frames dict, BitTrue)."""
-    bt = BitTrue(sys, preset, golden_run=golden_run)
+    bt = bittrue or BitTrue(sys, preset, range_steps=max(sys.n_steps, steps or 0))
     raws = {"x_raw": [], "v_raw": [], "a_raw": [], "saturations": []}
 
     class Recorder:

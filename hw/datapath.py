@@ -197,7 +197,10 @@ def step(ar, st: HwState, p: Params) -> HwState:
     zero_u = ar.zeros("u", N)
     newU, newX = [], []
     for k in range(D):
-        dv = ar.mul(ar.const("inv_mass", p.inv_mass), F[k], "dv") if p.inv_mass is not None else ar.convert(F[k], "dv")
+        if p.inv_mass is not None:
+            dv = ar.mul(ar.const("inv_mass", p.inv_mass), ar.convert(F[k], "fnode"), "dv")
+        else:
+            dv = ar.convert(F[k], "dv")
         u = ar.add(U[k], dv, "u")
         if p.gravity is not None and p.gravity[k] != 0.0:
             u = ar.add(u, ar.const("g", p.gravity[k]), "u")

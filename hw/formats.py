@@ -39,7 +39,8 @@ QUANTITIES = {
     "adot": ("operand", "rate of a per step"),
     "sdot": ("operand", "Voigt stretch rate adot l + a ldot"),
     "fe": ("operand", "force vector component of an element or pair"),
-    "facc": ("accumulator", "node force accumulator"),
+    "facc": ("accumulator", "node force accumulator: fe's binary point, exact sums (internal forces cancel)"),
+    "fnode": ("operand", "node force, multiplier operand of the per-node mass ratio"),
     "tr": ("operand", "topology: facet edge and vertex offsets"),
     "tl2": ("operand", "topology: squared lengths, dot products, cross product components"),
     "tl4": ("operand", "topology (3D): squared cross product and weight numerators"),
@@ -77,8 +78,8 @@ PRESETS = {
                      description="DSP-native: 18-bit words everywhere (one 18x18 multiplier per product)"),
     "medium": Preset("medium", 27, 18, rsqrt_seed_bits=9, rsqrt_newton=1, damper_segments_log2=8,
                      description="27-bit states, 18-bit multiplier operands"),
-    "wide": Preset("wide", 32, 27, rsqrt_seed_bits=10, rsqrt_newton=2, damper_segments_log2=10,
-                   description="32-bit states, 27-bit operands"),
+    "wide": Preset("wide", 32, 32, rsqrt_seed_bits=10, rsqrt_newton=2, damper_segments_log2=10,
+                   description="32-bit states and operands"),
 }
 
 
@@ -139,9 +140,13 @@ def derive(peaks: dict, preset: Preset, overrides: dict | None = None) -> Format
         elif cls == "fixed_operand":
             fs.shapes[q] = SQ(2, wo - 2)
         elif cls == "accumulator":
-            fs.shapes[q] = fit(peak, wo + preset.acc_guard, preset.headroom_bits + preset.acc_guard)
+            pass                                    # below: derived from the element force format
         else:
             fs.shapes[q] = fit(peak, wo, preset.headroom_bits)
+    if "facc" in peaks:
+        fe = fs.shapes.get("fe") or fit(peaks["facc"], wo, preset.headroom_bits)
+        i_acc = max(fe.i, _int_bits(peaks["facc"], preset.headroom_bits)) + preset.acc_guard
+        fs.shapes["facc"] = SQ(i_acc, fe.f)
     for q, like in CONSTANTS.items():
         if q not in peaks:
             continue

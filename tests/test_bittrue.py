@@ -1,0 +1,131 @@
+"""The bit-true fixed-point model: arithmetic rules, budgets against the golden model, run files."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from golden.model import simulate
+from golden.scene import builtin_names, compile_scene, load_scene
+from hw.bittrue import BitTrue, simulate_fixed
+from hw.fixed import SQ, UQ, Saturations, add, mul, shift_round
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+# ---------------------------------------------------------------- arithmetic rules
+
+def test_rounding_is_to_nearest_ties_up_never_truncation():
+    raw = np.arange(-64, 65, dtype=np.int64)
+    got = shift_round(raw, 3)
+    expected = np.floor(raw / 8 + 0.5).astype(np.int64)        # real rounding, computed independently
+    assert np.array_equal(got, expected)
+    assert np.any(got != raw >> 3)                             # differs from truncation
+
+
+def test_saturation_clamps_and_counts_instead_of_wrapping():
+    fmt = SQ(4, 4)                                             # range [-8, 8 - 1/16]
+    sat = Saturations()
+    got = mul(np.array([7 * 16, -7 * 16, 16]), SQ(8, 4), np.array([2 * 16, 2 * 16, 2 * 16]), SQ(8, 4), fmt, sat, "p")
+    assert got.tolist() == [fmt.max_raw, fmt.min_raw, 2 * 16]  # 14 -> max, -14 -> min, 2 -> 2
+    assert sat["p"] == 2
+    s = add(np.array([fmt.max_raw]), fmt, np.array([1]), fmt, fmt, sat, "s")
+    assert s[0] == fmt.max_raw and sat["s"] == 1               # no wrap to the negative end
+
+
+def test_formats_of_mixed_binary_points_add_exactly():
+    a, b = UQ(4, 8), SQ(2, 20)
+    x = add(np.array([3 << 8]), a, np.array([1 << 19]), b, SQ(6, 20))
+    assert x[0] == (3 << 20) + (1 << 19)                       # 3 + 0.5 exactly
+
+
+# ---------------------------------------------------------------- budgets
+
+def _no_collision_scenes():
+    return [n for n in builtin_names() if compile_scene(load_scene(n)).collision is None]
+
+
+@pytest.fixture(scope="module")
+def golden_runs():
+    return {}
+
+
+@pytest.mark.parametrize("name", [n for n in _no_collision_scenes() if n != "creep-1d"])
+def test_wide_preset_within_budget_of_golden_over_the_whole_scene(name):
+    """Max position error of the wide preset <= 1e-4 of the object size, every frame, full duration."""
+    sys_ = compile_scene(load_scene(name))
+    every = max(1, sys_.n_steps // 50)
+    gold = simulate(sys_, every=every)
+    run, raws, bt = simulate_fixed(sys_, "wide", every=every)
+    size = np.ptp(sys_.x0, axis=0).max()
+    err = np.abs(run.x - gold.x).max() / size
+    assert bt.sat.total == 0, dict(bt.sat)
+    assert err <= 1e-4, err
+
+
+@pytest.mark.parametrize("preset", ["wide", "medium"])
+def test_creep_permanent_set_in_fixed_point(preset):
+    """Round-to-nearest stagnation would destroy the permanent set: it must stay within 0.5 %."""
+    sys_ = compile_scene(load_scene("creep-1d"))
+    steps = 30_000              # 0.3 s: the 0.2 s pulse and ten Voigt time constants c1/k1 of recovery
+    run, _, bt = simulate_fixed(sys_, preset, steps=steps, every=steps)
+    expected = 0.05 * 0.2 / 5.0
+    got = run.x[-1, 1, 0] - 0.01
+    assert abs(got - expected) <= 0.005 * expected, (got, expected)
+    assert bt.sat.total == 0
+
+
+def test_narrow_preset_shows_stagnation_on_creep():
+    """The narrow preset loses the creep increments (the reason the presets exist): the report must show it."""
+    sys_ = compile_scene(load_scene("creep-1d"))
+    run, _, _ = simulate_fixed(sys_, "narrow", steps=30_000, every=30_000)
+    assert abs(run.x[-1, 1, 0] - 0.01 - 0.002) > 0.1 * 0.002
+
+
+def test_internal_forces_cancel_bit_for_bit():
+    """Element and topology forces are applied as +/- the same word: with no external force the node
+    force accumulators sum to exactly zero on every step (momentum is conserved before the per-node
+    rounding of the velocity update)."""
+    from hw.arith import FixedArith
+
+    class Spy(FixedArith):
+        sums = []
+
+        def scatter(self, parts, n, q):
+            out = super().scatter(parts, n, q)
+            Spy.sums.append(int(np.sum(out.x)))
+            Spy.nonzero = np.any(out.x != 0)
+            return out
+
+    sys_ = compile_scene(load_scene("press-2d-rheological"))
+    sys_.loads, sys_.floor = [], None
+    sys_.pinned = np.zeros_like(sys_.pinned)
+    rng = np.random.default_rng(0)
+    sys_.x0 = sys_.x0 + rng.normal(0, 3e-4, sys_.x0.shape)
+    bt = BitTrue(sys_, "wide", range_steps=300)
+    bt.ar.__class__ = Spy
+    st = bt.initial_state()
+    for _ in range(300):
+        bt.step(st)
+    assert len(Spy.sums) == 600 and Spy.nonzero
+    assert set(Spy.sums) == {0}
+
+
+# ---------------------------------------------------------------- the run file
+
+def test_fixed_backend_run_file_carries_raw_states_and_saturations(tmp_path):
+    out = tmp_path / "r.npz"
+    r = subprocess.run([sys.executable, "-m", "sim.cli", "simulate", "press-2d-viscoelastic", "--backend", "fixed",
+                        "--preset", "medium", "--steps", "400", "--every", "100", "--out", str(out)],
+                       cwd=ROOT, capture_output=True, text=True, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+    assert r.returncode == 0, r.stderr
+    with np.load(out) as f:
+        assert f["x_raw"].shape == f["x"].shape and f["x_raw"].dtype == np.int64
+        assert f["v_raw"].shape == f["v"].shape and f["a_raw"].shape == f["a"].shape
+        assert f["saturations"].shape == (5,)
+        assert str(f["backend"]) == "fixed" and str(f["preset"]) == "medium"
+        assert f["saturation_names"].shape == f["saturation_counts"].shape
+        assert np.any(f["x_raw"][-1] != f["x_raw"][0])
