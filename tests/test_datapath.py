@@ -78,7 +78,7 @@ C = 0.5
 eps = 0.002
 [[objects]]
 {mesh}
-material = {{ preset = "rheological", k1 = 5.0, node_mass = 1e-3 }}
+material = {{ preset = "rheological", k1 = 5.0, c2 = 5.0, node_mass = 1e-3 }}
 velocity = {"[0.05, 0.0]" if dim == 2 else "[0.05, 0.02, 0.0]"}
 pinned = {pinned}
 [[loads]]
@@ -90,7 +90,11 @@ force = {force}
 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_float_datapath_equals_golden_with_topology_floor_and_friction(tmp_path, dim):
-    """A cell crushed towards inversion onto a frictional floor: every optional unit is active."""
+    """A cell crushed towards inversion onto a frictional floor: every optional unit is active.
+
+    Constant c2 here: the one-step-lagged nonlinear damper can flip between two forces every step
+    (a period-2 oscillation of the lagged scheme), which amplifies float rounding differences.
+    """
     sys = _crush(tmp_path, dim)
     ex, ev, ea, moved, ar = _compare(sys, steps=2000)
     assert {"tdist", "w", "fe"} <= set(ar.peak)           # the topology unit really acted
