@@ -129,6 +129,22 @@ def cmd_run(args) -> int:
     return 0
 
 
+def cmd_report(args) -> int:
+    from sim import report
+    sys_ = _load_system(args.scene)
+    with np.errstate(over="ignore", invalid="ignore"):
+        summary = report.build(sys_, args.out, presets=args.presets, log=lambda m: print(f"  {m}", flush=True))
+    print(f"wrote {args.out}/error.csv, summary.json, error_vs_time.png, cost_vs_accuracy.png")
+    for preset, q in summary["quantisation"].items():
+        print(f"  quantisation {preset:7s}: " + (f"max {q['max_relative']:.2e} of the object size, "
+              f"{sum(q['saturations'].values())} saturations" if "max_relative" in q else q["skipped"]))
+    for label, d in summary["discretisation"].items():
+        if isinstance(d, dict):
+            print(f"  discretisation {label:4s}: " + (f"max {d['max_relative']:.2e} of the object size"
+                  if "max_relative" in d else "diverged"))
+    return 0
+
+
 def _peak_frame(sys_, run) -> int:
     """Frame of the largest displacement of the loaded nodes (or of all nodes without loads)."""
     nodes = np.concatenate([ld.nodes for ld in sys_.loads]) if sys_.loads else np.arange(sys_.n_nodes)
@@ -175,6 +191,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="approximate element counts (default: 1000 10000 100000)")
     s.add_argument("--seconds", type=float, default=1.0, help="minimum measuring time per size (default 1)")
     s.set_defaults(func=cmd_bench)
+
+    s = sub.add_parser("report", help="error against run time: quantisation and discretisation errors")
+    s.add_argument("scene", help="built-in scene name or path to a scene .toml")
+    s.add_argument("--out", required=True, help="output directory")
+    s.add_argument("--presets", nargs="+", choices=PRESETS, default=list(PRESETS), help="format presets")
+    s.set_defaults(func=cmd_report)
 
     s = sub.add_parser("run", help="the main job: simulate the default scene, render it and export it")
     s.add_argument("--scene", default=DEFAULT_SCENE, help=f"scene (default: {DEFAULT_SCENE})")

@@ -1,0 +1,139 @@
+"""Error against run time: what accuracy each word width and each time step costs, for one scene.
+
+- Quantisation error: the bit-true model of every format preset against the golden model at the scene's
+  dt (max and RMS position error over nodes, absolute and relative to the object size), per frame.
+- Discretisation error: the golden model at dt, 2 dt and 4 dt against a converged reference, the golden
+  model at dt / 16 (dt / 4 when that would exceed `max_ref_steps` steps; the summary says which).
+- Run time per simulated second: golden and bit-true measured on this machine; the FPGA figure
+  appears once the hardware exists (cycles per step x clock).
+Writes DIR/error.csv, DIR/summary.json, DIR/error_vs_time.png and DIR/cost_vs_accuracy.png.
+"""
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from golden.model import SimulationDiverged, System, simulate
+
+FRAMES = 100
+
+
+def _scaled(sys: System, factor: float) -> System:
+    """The same scene with dt multiplied by factor (same duration)."""
+    return dataclasses.replace(sys, dt=sys.dt * factor, n_steps=int(round(sys.n_steps / factor)))
+
+
+def _errors(x, ref, size):
+    diff = np.linalg.norm(x - ref, axis=2)                 # (F, N) position error per node
+    return diff.max(1), np.sqrt((diff ** 2).mean(1)), diff.max(1) / size
+
+
+def build(sys: System, out_dir, presets=("narrow", "medium", "wide"), max_ref_steps=2_000_000,
+          log=print) -> dict:
+    from hw.bittrue import simulate_fixed
+    from hw.datapath import NotSupported
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    size = float(np.ptp(sys.x0, axis=0).max())
+    every = 4 * max(1, -(-sys.n_steps // (4 * FRAMES)))     # a multiple of 4: frames shared by all dts
+    n = (sys.n_steps // every) * every
+    T = n * sys.dt
+    sysn = dataclasses.replace(sys, n_steps=n)
+    summary = {"scene": sys.name, "dt": sys.dt, "duration": T, "object_size_m": size, "frames": n // every + 1,
+               "quantisation": {}, "discretisation": {}, "run_time_per_simulated_second": {}}
+    cols = {}
+
+    log(f"golden at dt = {sys.dt:g} s ({n} steps)")
+    gold = simulate(sysn, every=every)
+    t = gold.t
+    cols["t"] = t
+    summary["run_time_per_simulated_second"]["golden"] = gold.wall_seconds / T
+
+    for preset in presets:
+        log(f"bit-true model, preset {preset}")
+        try:
+            t0 = time.perf_counter()
+            run, raws, bt = simulate_fixed(sysn, preset, every=every)
+            wall = time.perf_counter() - t0
+        except NotSupported as exc:
+            summary["quantisation"][preset] = {"skipped": str(exc)}
+            continue
+        mx, rms, rel = _errors(run.x, gold.x, size)
+        cols[f"quant_max_m_{preset}"], cols[f"quant_rms_m_{preset}"], cols[f"quant_max_rel_{preset}"] = mx, rms, rel
+        summary["quantisation"][preset] = {"max_m": float(mx.max()), "rms_m": float(rms.max()),
+                                           "max_relative": float(rel.max()), "saturations": dict(bt.sat),
+                                           "wall_s": wall}
+        summary["run_time_per_simulated_second"][f"fixed-{preset}"] = wall / T
+
+    factor_ref = 16 if n * 16 <= max_ref_steps else 4
+    log(f"golden reference at dt / {factor_ref}")
+    ref = simulate(_scaled(sysn, 1 / factor_ref), every=every * factor_ref)
+    summary["discretisation"]["reference"] = f"golden at dt/{factor_ref}"
+    for factor in (1, 2, 4):
+        label = "dt" if factor == 1 else f"{factor}dt"
+        try:
+            run = gold if factor == 1 else simulate(_scaled(sysn, factor), every=every // factor)
+        except SimulationDiverged as exc:
+            summary["discretisation"][label] = {"diverged": str(exc)}
+            continue
+        mx, rms, rel = _errors(run.x, ref.x, size)
+        cols[f"disc_max_m_{label}"], cols[f"disc_max_rel_{label}"] = mx, rel
+        summary["discretisation"][label] = {"dt": sys.dt * factor, "max_m": float(mx.max()),
+                                            "max_relative": float(rel.max()),
+                                            "run_time_per_simulated_second": run.wall_seconds / T}
+    summary["run_time_per_simulated_second"]["fpga"] = None
+    summary["fpga_note"] = "hardware backend not built yet: cycles per step x clock will appear here"
+
+    with open(out / "error.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        keys = list(cols)
+        w.writerow(keys)
+        for row in zip(*(cols[k] for k in keys)):
+            w.writerow([f"{v:.9g}" for v in row])
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    _plots(out, cols, summary)
+    return summary
+
+
+def _plots(out: Path, cols: dict, summary: dict) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    t = cols["t"]
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    floor = 1e-11          # exact zeros (before anything moves) are drawn at the bottom of the plot
+    for k, style in (("quant_max_rel_", "-"), ("disc_max_rel_", "--")):
+        for key in [c for c in cols if c.startswith(k)]:
+            label = ("quantisation, " if k.startswith("quant") else "discretisation, ") + key[len(k):]
+            ax.semilogy(t, np.maximum(cols[key], floor), style, label=label)
+    ax.axhline(1e-4, color="grey", lw=0.8, ls=":", label="budget 1e-4 (wide)")
+    ax.set_ylim(bottom=floor)
+    ax.set_xlabel("simulated time [s]")
+    ax.set_ylabel("max position error / object size")
+    ax.set_title(f"{summary['scene']}: error against simulated time")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "error_vs_time.png", dpi=110)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    floor = 1e-11
+    rt = summary["run_time_per_simulated_second"]
+    for preset, q in summary["quantisation"].items():
+        if "max_relative" in q:
+            ax.loglog(rt[f"fixed-{preset}"], max(q["max_relative"], floor), "o", label=f"bit-true {preset}")
+    for label, d in summary["discretisation"].items():
+        if isinstance(d, dict) and "max_relative" in d:
+            ax.loglog(d["run_time_per_simulated_second"], max(d["max_relative"], floor), "s", label=f"golden {label}")
+    ax.set_xlabel("wall seconds per simulated second (this machine)")
+    ax.set_ylabel("max position error / object size")
+    ax.set_title(f"{summary['scene']}: accuracy against cost")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "cost_vs_accuracy.png", dpi=110)
+    plt.close(fig)
