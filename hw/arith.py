@@ -191,9 +191,10 @@ class FixedArith:
         Integer sums are order independent, so any hardware accumulation order gives these bits.
         """
         f = max(self.shape(v.q).f for v, _ in parts)
-        acc = np.zeros(n, np.int64)
-        for v, idx in parts:
-            acc += _bincount_int(idx, np.asarray(v.x, np.int64) << (f - self.shape(v.q).f), n)
+        idx = np.concatenate([np.broadcast_to(i, np.shape(i)) for _, i in parts])
+        val = np.concatenate([np.broadcast_to(np.asarray(v.x, np.int64) << (f - self.shape(v.q).f), np.shape(i))
+                              for v, i in parts])
+        acc = _bincount_int(idx, val, n)
         return V(round_into(acc, f, self.shape(q), self.sat, q), q)
 
 

@@ -52,7 +52,34 @@ def bench_golden(n_elements: int, min_seconds: float = 1.0) -> dict:
                 seconds=el, steps_per_s=steps / el, element_updates_per_s=steps * sys.n_elements / el)
 
 
+def bench_fixed(n_elements: int, min_seconds: float = 1.0, preset: str = "wide") -> dict:
+    """The bit-true model on the same mesh (formats from a short range analysis of its first steps)."""
+    from hw.bittrue import BitTrue
+    sys = square_system(n_elements)
+    sys.n_steps = 50
+    bt = BitTrue(sys, preset, range_steps=50)
+    st = bt.initial_state()
+    bt.step(st)
+    steps, t0 = 0, time.perf_counter()
+    while True:
+        bt.step(st)
+        steps += 1
+        el = time.perf_counter() - t0
+        if el >= min_seconds and steps >= 5:
+            break
+    return dict(backend="fixed", preset=preset, elements=sys.n_elements, nodes=sys.n_nodes, steps=steps,
+                seconds=el, steps_per_s=steps / el, element_updates_per_s=steps * sys.n_elements / el)
+
+
 def run(backend: str, sizes=SIZES, min_seconds: float = 1.0) -> list[dict]:
-    if backend != "golden":
-        raise ValueError(f"backend '{backend}' has no benchmark yet (available: golden)")
-    return [bench_golden(n, min_seconds) for n in sizes]
+    if backend == "golden":
+        return [bench_golden(n, min_seconds) for n in sizes]
+    if backend == "fixed":
+        rows = []
+        for n in sizes:
+            g, f = bench_golden(n, min_seconds), bench_fixed(n, min_seconds)
+            f["golden_steps_per_s"] = g["steps_per_s"]
+            f["ratio_to_golden"] = f["steps_per_s"] / g["steps_per_s"]
+            rows.append(f)
+        return rows
+    raise ValueError(f"backend '{backend}' has no benchmark (available: golden, fixed)")
