@@ -66,6 +66,7 @@ class System:
     collision: Collision | None = None
     loads: list = field(default_factory=list)
     materials: list = field(default_factory=list)   # per object: the resolved material table
+    formats: dict = field(default_factory=dict)     # [formats] overrides for the bit-true model / hardware
 
     @property
     def n_nodes(self) -> int:

@@ -309,7 +309,7 @@ def compile_scene(scene: Scene) -> System:
     chk = _Tables(scene.source)
     d = scene.data
     chk.keys(d, "", ("dim", "integrator", "objects"),
-             ("name", "description", "world", "topology", "collision", "loads"))
+             ("name", "description", "world", "topology", "collision", "loads", "formats"))
     dim = d["dim"]
     if isinstance(dim, bool) or not isinstance(dim, int) or dim not in (2, 3):
         chk.fail("", f"'dim' must be 2 or 3, got {dim!r}")
@@ -456,6 +456,13 @@ def compile_scene(scene: Scene) -> System:
             chk.fail(where, f"'end' ({end:g}) must be after 'start' ({start:g})")
         loads.append(Load(sel, chk.vector(ld, "force", where, dim), start, end))
 
+    formats = d.get("formats", {})
+    if formats:
+        from hw.formats import check_overrides       # number formats are defined in hw/formats.py
+        try:
+            check_overrides(formats)
+        except ValueError as exc:
+            chk.fail("formats", str(exc))
     return System(scene.name, dim, x0, cat(vel), cat(mass), cat(pinned), all_edges, cat(a0), elem,
                   all_cells, cat(node_object), cat(cell_object).astype(np.int64), names, gravity, dt,
-                  n_steps, every, floor, topology, collision, loads, materials)
+                  n_steps, every, floor, topology, collision, loads, materials, dict(formats))

@@ -73,7 +73,7 @@ class BitTrue:
         self.params = Params.of(sys, self.units)
         if formats is None:
             peaks = range_analysis(sys, self.params, self.units, range_steps)
-            formats = derive(peaks, PRESETS[preset], overrides)
+            formats = derive(peaks, PRESETS[preset], {**sys.formats, **(overrides or {})})
         self.formats = formats
         self.sat = Saturations()
         self.ar = FixedArith(formats, function_units(formats, self.params), self.sat)

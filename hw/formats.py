@@ -155,9 +155,21 @@ def derive(peaks: dict, preset: Preset, overrides: dict | None = None) -> Format
         else:
             width = ws if q == "g" else wo
             fs.shapes[q] = fit(peaks[q], width, 0)
-    # the floor height and thresholds are compared with positions/distances: keep them in those formats
-    for q, shape in (overrides or {}).items():
-        if q not in QUANTITIES and q not in CONSTANTS:
-            raise ValueError(f"[formats] names an unknown quantity '{q}' (known: {', '.join(sorted(QUANTITIES))})")
-        fs.shapes[q] = shape if isinstance(shape, Shape) else parse_shape(shape)
+    for q, shape in check_overrides(overrides or {}).items():
+        fs.shapes[q] = shape
     return fs
+
+
+def check_overrides(overrides: dict) -> dict:
+    """Validate a scene's [formats] table: quantity -> "SQ(i, f)"; returns quantity -> Shape."""
+    if not isinstance(overrides, dict):
+        raise ValueError("must be a table of quantity = \"SQ(i, f)\"")
+    out = {}
+    for q, text in overrides.items():
+        if q not in QUANTITIES and q not in CONSTANTS:
+            raise ValueError(f"unknown quantity '{q}' (known: {', '.join(sorted(QUANTITIES))})")
+        shape = text if isinstance(text, Shape) else parse_shape(text)
+        if shape.width > 32:
+            raise ValueError(f"'{q}' = {shape}: at most 32 bits")
+        out[q] = shape
+    return out

@@ -129,3 +129,19 @@ def test_fixed_backend_run_file_carries_raw_states_and_saturations(tmp_path):
         assert str(f["backend"]) == "fixed" and str(f["preset"]) == "medium"
         assert f["saturation_names"].shape == f["saturation_counts"].shape
         assert np.any(f["x_raw"][-1] != f["x_raw"][0])
+
+
+def test_scene_can_override_a_format(tmp_path):
+    text = (ROOT / "golden" / "scenes" / "press-2d-viscoelastic.toml").read_text()
+    p = tmp_path / "s.toml"
+    p.write_text(text + '\n[formats]\nx = "SQ(3, 20)"\n')
+    sys_ = compile_scene(load_scene(p))
+    bt = BitTrue(sys_, "wide", range_steps=10)
+    assert str(bt.formats["x"]) == "SQ(3, 20)"
+    assert str(BitTrue(compile_scene(load_scene("press-2d-viscoelastic")), "wide", range_steps=10).formats["x"]) != "SQ(3, 20)"
+    p.write_text(text + '\n[formats]\nxx = "SQ(3, 20)"\n')
+    with pytest.raises(ValueError, match="unknown quantity 'xx'"):
+        load_scene(p)
+    p.write_text(text + '\n[formats]\nx = "Q3.20"\n')
+    with pytest.raises(ValueError, match=r"SQ\(i, f\)"):
+        load_scene(p)
