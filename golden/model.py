@@ -198,6 +198,8 @@ def simulate(sys: System, steps: int | None = None, every: int | None = None,
     xs = np.empty((F,) + sys.x0.shape)
     vs = np.empty_like(xs)
     as_ = np.empty((F, sys.n_elements))
+    from .stability import EnergyWatch      # divergence watchdog: non-finite or exploding energy
+    watch = EnergyWatch(sys)
     bar = _progress(steps, sys.name) if progress else None
     t0 = time.perf_counter()
     for f, target in enumerate(at):
@@ -208,9 +210,18 @@ def simulate(sys: System, steps: int | None = None, every: int | None = None,
         x, v, a = stepper.frame(st) if hasattr(stepper, "frame") else (st.x, st.v, st.a)
         xs[f], vs[f], as_[f] = x, v, a
         check_finite(sys, xs[f], vs[f], as_[f], st.step)
+        watch.check(_Frame(xs[f], vs[f], as_[f], st.step))
     if bar is not None:
         bar.close()
     return Run(at * sys.dt, xs, vs, as_, time.perf_counter() - t0)
+
+
+@dataclass
+class _Frame:
+    x: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    step: int
 
 
 def _progress(total: int, name: str):

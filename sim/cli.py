@@ -64,7 +64,9 @@ def cmd_simulate(args) -> int:
     from sim import runfile
     if not args.out.endswith(".npz"):
         raise UsageError(f"--out must name a .npz file, got '{args.out}'")
+    from sim.stability_cmd import refuse_if_unstable
     sys_ = _load_system(args.scene)
+    refuse_if_unstable(sys_, args.force)
     run, extra = _simulate(sys_, args.backend, args.steps, args.every, preset=args.preset)
     runfile.save(args.out, {**runfile.run_arrays(sys_, run, args.backend), **extra})
     steps = int(round(run.t[-1] / sys_.dt))
@@ -171,6 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--preset", default="wide", choices=PRESETS,
                    help="number-format preset of the fixed backend (default: wide)")
     s.add_argument("--out", required=True, help="output .npz file")
+    s.add_argument("--force", action="store_true", help="run even when dt exceeds the predicted stable limit")
     s.set_defaults(func=cmd_simulate)
 
     s = sub.add_parser("show", help="render a run to PNG frames or a GIF animation")
@@ -191,6 +194,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="approximate element counts (default: 1000 10000 100000)")
     s.add_argument("--seconds", type=float, default=1.0, help="minimum measuring time per size (default 1)")
     s.set_defaults(func=cmd_bench)
+
+    from sim import stability_cmd
+    stability_cmd.add_parser(sub)
 
     s = sub.add_parser("report", help="error against run time: quantisation and discretisation errors")
     s.add_argument("scene", help="built-in scene name or path to a scene .toml")

@@ -188,3 +188,14 @@ def test_help(cmd):
     proc = ok(rheo(*cmd, "--help"))
     assert proc.stdout.startswith(f"usage: {' '.join(['rheo'] + cmd)}")
     assert proc.stderr == ""
+
+
+def test_simulate_refuses_a_dt_above_the_stable_limit_unless_forced(tmp_path):
+    scene = (SCENES / "press-2d-viscoelastic.toml").read_text().replace("dt = 1e-4", "dt = 2e-3")
+    p = tmp_path / "fast.toml"
+    p.write_text(scene)
+    out = tmp_path / "r.npz"
+    one_line_error(rheo("simulate", p, "--out", out), "exceeds the predicted stable limit")
+    assert not out.exists()
+    one_line_error(rheo("simulate", p, "--force", "--out", out), "diverged")
+    assert not out.exists()

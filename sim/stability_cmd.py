@@ -1,0 +1,102 @@
+"""`rheo stability SCENE [--measure] [--json]`: the predicted (and measured) largest stable dt of a scene,
+and the guard `refuse_if_unstable` for `rheo simulate` (golden/stability.py has the formulas).
+
+Wiring in sim/cli.py:
+
+    from sim import stability_cmd
+    stability_cmd.add_parser(sub)                     # in build_parser()
+    stability_cmd.refuse_if_unstable(sys_, args.force)  # in cmd_simulate / cmd_run, before simulating
+"""
+from __future__ import annotations
+
+import json
+import math
+
+
+def add_parser(subparsers):
+    s = subparsers.add_parser(
+        "stability", help="predicted (and measured) largest stable dt of a scene",
+        description="Predict the largest dt at which the explicit (symplectic Euler) step of a scene is stable, "
+                    "with the node or element that limits it; --measure also finds the real limit by bisection "
+                    "on runs of the golden model.")
+    s.add_argument("scene", help="built-in scene name or path to a scene .toml")
+    s.add_argument("--measure", action="store_true",
+                   help="also measure the limit on real runs (seconds to a minute for the built-in 2D scenes)")
+    s.add_argument("--json", action="store_true", help="print JSON")
+    s.set_defaults(func=cmd)
+    return s
+
+
+def _finite(x):
+    """JSON has no infinity: None stands for 'no bound'."""
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_finite(v) for v in x]
+    return x
+
+
+def _s(x: float) -> str:
+    return "none" if not math.isfinite(x) else f"{x:.4g} s"
+
+
+def report(sys_, measure: bool = False) -> dict:
+    """Prediction (and measurement) as one dict."""
+    from golden.stability import measure as measure_dt
+    from golden.stability import predict
+    p = predict(sys_)
+    out = {"scene": sys_.name, "nodes": sys_.n_nodes, "elements": sys_.n_elements, **p}
+    if measure:
+        m = measure_dt(sys_, pred=p)
+        out["measured"] = {"dt_meas": m["dt_meas"], "stable_at": m["lo"], "unstable_at": m["hi"],
+                           "ratio": m["ratio"], "runs": len(m["trials"]), "seconds": m["seconds"],
+                           "reference_dt": m["dt_ref"]}
+    return out
+
+
+def cmd(args) -> int:
+    from golden.scene import compile_scene, load_scene
+    sys_ = compile_scene(load_scene(args.scene))
+    out = report(sys_, args.measure)
+    if args.json:
+        print(json.dumps(_finite(out), indent=2))
+        return 0
+    q = out["parts"]
+    print(f"{out['scene']}: {out['nodes']} nodes, {out['elements']} elements")
+    print(f"  predicted stable dt  {_s(out['dt_pred'])}  (limited by {out['limiting']})")
+    print(f"  scene dt             {_s(out['dt'])}  margin {out['margin']:.3g} x"
+          + ("  ** above the predicted limit **" if out["margin"] < 1 else ""))
+    print(f"  node bound           {_s(out['node_bound'])}: node {q['node']}, {q['case']}")
+    line = (f"    mass {q['mass']:.4g} kg; elements k {q['k_elements']:.4g} N/m, c {q['c_elements']:.4g} N s/m"
+            + (f", c2 {q['c2_elements']:.4g} N s/m" if "c2_elements" in q else ""))
+    if q["mode"] == "mesh":
+        line += f" (mesh factor {q['mesh_factor']:.3f}, x {q['element_scale']:.3f})"
+    else:
+        line += f"; {q['contact']} contact K {q['k_contact']:.4g} N/m, C {q['c_contact']:.4g} N s/m"
+    print(line)
+    el = f"  element bound        {_s(out['element_bound'])}"
+    if "element_k1" in q:
+        el += (f": element {q['element']} (a state; k1 {q['element_k1']:.4g}, c1 {q['element_c1']:.4g}, "
+               f"c_min {q['element_c_min']:.4g})")
+    print(el)
+    for note in out["notes"]:
+        print(f"  note: {note}")
+    if "measured" in out:
+        m = out["measured"]
+        print(f"  measured stable dt   {_s(m['dt_meas'])}  (stable at {m['stable_at']:.4g} s, unstable at "
+              f"{m['unstable_at']:.4g} s; {m['runs']} runs, {m['seconds']:.1f} s)")
+        print(f"  predicted / measured {m['ratio']:.3f}")
+    return 0
+
+
+def refuse_if_unstable(sys_, force: bool) -> None:
+    """Raise ValueError (one line) when the scene's dt is above the predicted stable limit, unless force."""
+    if force:
+        return
+    from golden.stability import predict
+    p = predict(sys_)
+    if sys_.dt > p["dt_pred"]:
+        raise ValueError(f"scene '{sys_.name}': dt = {sys_.dt:g} s exceeds the predicted stable limit "
+                         f"{p['dt_pred']:.4g} s (limited by {p['limiting']}); use a smaller dt or --force")

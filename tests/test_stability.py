@@ -1,0 +1,229 @@
+"""Stability of the explicit scheme (golden/stability.py, MODEL.md section 7): the predicted dt limit against
+closed forms and against limits measured on real runs, the divergence watchdog and the simulate guard."""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import time
+
+import numpy as np
+import pytest
+
+from golden.model import Golden, SimulationDiverged, State
+from golden.scene import builtin_names, compile_scene, load_scene
+from golden.stability import (EnergyWatch, measure, node_three_element_limit, predict, three_element_limit,
+                              voigt_limit)
+from sim import stability_cmd
+from sim.stability_cmd import refuse_if_unstable
+
+
+def scene_from(tmp_path, text: str, name="scene"):
+    p = tmp_path / f"{name}.toml"
+    p.write_text(text)
+    return compile_scene(load_scene(p))
+
+
+def one_element(tmp_path, material: str, m: float, dt: float, duration: float):
+    """A mass m on one element whose far node is pinned, nothing else (no gravity, no load)."""
+    return scene_from(tmp_path, f"""
+dim = 2
+[integrator]
+dt = {dt}
+duration = {duration}
+[[objects]]
+mesh = {{ type = "explicit", nodes = [[0.0, 0.0], [0.01, 0.0]], edges = [[0, 1]] }}
+material = {{ {material} }}
+masses = [{m}, {m}]
+pinned = [0]
+""")
+
+
+# ---------------------------------------------------------------- closed forms
+
+def test_mass_on_spring_damper_matches_closed_form(tmp_path):
+    """Viscoelastic preset: T = k1 (l - L) + c1 ldot; stable iff k dt^2 + 2 c dt < 4 m."""
+    m, k, c = 0.01, 50.0, 0.5
+    sys = one_element(tmp_path, 'preset = "viscoelastic"', m, dt=1e-3, duration=40.0)   # ~2000 steps at the limit
+    closed = (-c + math.sqrt(c * c + 4 * k * m)) / k
+    p = predict(sys)
+    assert abs(p["dt_pred"] / closed - 1) < 1e-9, (p["dt_pred"], closed)
+    assert p["limiting"] == "node 1 (elements)"
+    assert p["element_bound"] == math.inf                   # no a state
+    assert p["margin"] == pytest.approx(closed / 1e-3)
+    r = measure(sys, rel_tol=0.02)
+    assert abs(r["dt_meas"] / closed - 1) < 0.05, r
+
+
+def test_mass_on_three_element_element_matches_closed_form(tmp_path):
+    """MODEL.md 7: m = 1, k1 = 100, c1 = c2 = 5 is stable below 0.1275, under both simple bounds (0.2)."""
+    m, k1, c1, c2 = 1.0, 100.0, 5.0, 5.0
+    B = c1 * c2 + k1 * m
+    closed = min(2 * (c1 + c2) * m / B, (-B + math.sqrt(B * B + 4 * c2 * k1 * (c1 + c2) * m)) / (c2 * k1))
+    assert f"{closed:.4f}" == "0.1275"
+    assert closed < 2 / math.sqrt(k1 / m) and closed < 2 * (c1 + c2) / k1
+    assert three_element_limit(m, k1, c1, c2, 1.0) == pytest.approx(closed, rel=1e-12)
+    sys = one_element(tmp_path, f"k1 = {k1}, c1 = {c1}, c2 = {c2}, a0 = 1.0, a_min = 0.0, a_max = 1.0",
+                      m, dt=0.01, duration=300.0)
+    p = predict(sys)
+    assert abs(p["dt_pred"] / closed - 1) < 1e-9, (p["dt_pred"], closed)
+    assert p["element_bound"] == pytest.approx(2 * (c1 + c2) / k1)      # the a state alone: 0.2
+    r = measure(sys, rel_tol=0.02)
+    assert abs(r["dt_meas"] / closed - 1) < 0.05, r
+
+
+def test_three_element_node_model_matches_eigenvalues():
+    """The Jury-condition limits (closed form for kp = 0, bisection otherwise) against the spectral radius
+    of the linearised 3-state map (x, v, s) of the module docstring."""
+    rng = np.random.default_rng(3)
+
+    def radius(h, m, kp, cp, k1, c1, c2, a):
+        G = c1 + c2
+        cv, cs, sig, kap = c1 * c2 / G + cp, c2 * k1 / G, c2 / G, k1 / G
+        km, cvm, csm = h * kp / m, h * cv / m, h * cs / m
+        A = np.array([[1 - h * km, h * (1 - cvm), -h * csm], [-km, 1 - cvm, -csm],
+                      [-a * h * km, h * sig - a * h * cvm, 1 - h * kap - a * h * csm]])
+        if kp == 0:                                    # x feeds nothing back: drop its eigenvalue 1
+            A = A[1:, 1:]
+        return np.abs(np.linalg.eigvals(A)).max()
+
+    for _ in range(20):
+        m, kp, cp = 10 ** rng.uniform(-3, 0), 10 ** rng.uniform(0, 4) * rng.integers(0, 2), 10 ** rng.uniform(-2, 1)
+        k1, c1, c2, a = 10 ** rng.uniform(0, 4), 10 ** rng.uniform(-2, 1), 10 ** rng.uniform(-2, 2), rng.uniform()
+        h = node_three_element_limit(m, kp, cp, k1, c1, c2, a)
+        assert radius(0.999 * h, m, kp, cp, k1, c1, c2, a) < 1 + 1e-9
+        assert radius(1.001 * h, m, kp, cp, k1, c1, c2, a) > 1
+    assert voigt_limit(0.0, 2.0, 1.0) == pytest.approx(1.0)             # a pure damper: dt < 2 m / c
+
+
+# ---------------------------------------------------------------- built-in scenes
+
+SCENES_2D = [n for n in builtin_names() if load_scene(n).data["dim"] == 2]
+MEASURED: dict[str, dict] = {}
+
+
+def measured(name: str) -> dict:
+    if name not in MEASURED:
+        MEASURED[name] = measure(compile_scene(load_scene(name)))
+    return MEASURED[name]
+
+
+# Runtime: the slowest part of the file, 0.1-11 s per scene and about 50 s for the 13 built-in 2D scenes on
+# this busy 2-core machine (a reference run at dt_pred / 2, then 5-7 bisection runs of the scene's full
+# duration, each capped at 2e4 steps; press-2d-plastic, multi-2d and rigid-on-rheo-2d cost most). The whole
+# file takes about a minute. No scene is skipped and none needs fewer steps.
+@pytest.mark.parametrize("name", SCENES_2D)
+def test_prediction_is_half_to_all_of_the_measured_limit(name):
+    r = measured(name)
+    pred = r["dt_pred"]
+    # the first run of measure() is at dt_pred: stable means dt_pred <= lo (the largest stable dt found)
+    assert pred <= r["lo"], f"{name}: predicted {pred:.4g} s is not stable (measured {r['lo']:.4g}..{r['hi']:.4g} s)"
+    assert pred >= 0.5 * r["hi"], f"{name}: predicted {pred:.4g} s < 0.5 x measured {r['lo']:.4g}..{r['hi']:.4g} s"
+
+
+def test_every_builtin_scene_runs_below_its_predicted_limit():
+    for name in builtin_names():
+        sys = compile_scene(load_scene(name))
+        p = predict(sys)
+        assert p["margin"] > 1, (name, p["dt_pred"], p["limiting"])
+
+
+def test_prediction_is_fast_for_1e5_elements(tmp_path):
+    sys = scene_from(tmp_path, """
+dim = 2
+[integrator]
+dt = 1e-4
+duration = 1.0
+[world]
+gravity = [0.0, -9.81]
+[world.floor]
+K = 1e4
+C = 1.0
+mu = 0.3
+[collision]
+K = 1e4
+threshold = 0.002
+mu = 0.3
+[[objects]]
+mesh = { type = "rectangle", size = [1.0, 1.0], divisions = [180, 180] }
+material = { preset = "rheological", density = 1000.0 }
+""")
+    assert sys.n_elements > 95_000
+    best = math.inf
+    for _ in range(2):
+        t0 = time.perf_counter()
+        p = predict(sys)
+        best = min(best, time.perf_counter() - t0)
+    assert math.isfinite(p["dt_pred"]) and p["dt_pred"] > 0
+    assert best < 1.0, best
+
+
+# ---------------------------------------------------------------- watchdog and guard
+
+def run_watched(sys):
+    """A golden run checked by EnergyWatch at every output frame (as golden.model.simulate will)."""
+    watch = EnergyWatch(sys)
+    g = Golden(sys)
+    st = State.initial(sys)
+    with np.errstate(over="ignore", invalid="ignore"):
+        while st.step < sys.n_steps:
+            for _ in range(min(sys.every, sys.n_steps - st.step)):
+                g.step(st)
+            watch.check(st)
+
+
+def test_watchdog_raises_at_three_times_the_measured_limit():
+    name = "press-2d-viscoelastic"
+    sys = compile_scene(load_scene(name))
+    run_watched(sys)                                   # its own dt: no complaint
+    dt = 3 * measured(name)["dt_meas"]
+    fast = dataclasses.replace(sys, dt=dt, n_steps=int(sys.n_steps * sys.dt / dt), every=10)
+    with pytest.raises(SimulationDiverged) as exc:
+        run_watched(fast)
+    msg = str(exc.value)
+    assert f"scene '{name}' diverged at step" in msg
+    assert "reduce dt" in msg and "below the predicted limit" in msg
+    assert len(msg.splitlines()) == 1
+
+
+def test_refuse_if_unstable():
+    sys = compile_scene(load_scene("press-2d-viscoelastic"))
+    refuse_if_unstable(sys, force=False)               # the scene's own dt is fine
+    limit = predict(sys)["dt_pred"]
+    bad = dataclasses.replace(sys, dt=2 * limit)
+    with pytest.raises(ValueError) as exc:
+        refuse_if_unstable(bad, force=False)
+    msg = str(exc.value)
+    assert msg.startswith("scene 'press-2d-viscoelastic': dt = ")
+    assert "exceeds the predicted stable limit" in msg and "limited by node" in msg and "--force" in msg
+    assert len(msg.splitlines()) == 1
+    refuse_if_unstable(bad, force=True)
+
+
+# ---------------------------------------------------------------- command
+
+def stability(argv, capsys):
+    parser = argparse.ArgumentParser(prog="rheo")
+    stability_cmd.add_parser(parser.add_subparsers())
+    args = parser.parse_args(["stability", *argv])
+    assert args.func(args) == 0
+    return capsys.readouterr().out
+
+
+def test_stability_command_text_and_json(capsys):
+    out = stability(["press-2d-rheological"], capsys)
+    assert "predicted stable dt" in out and "limited by node" in out and "margin" in out
+    data = json.loads(stability(["creep-1d", "--json"], capsys))
+    assert data["scene"] == "creep-1d"
+    assert data["dt"] == 1e-5 and data["dt_pred"] > data["dt"]
+    assert data["margin"] == pytest.approx(data["dt_pred"] / data["dt"])
+    assert data["limiting"].startswith("node 1")
+    assert data["friction_dt"] is None                 # JSON has no infinity
+
+
+def test_stability_command_measures(capsys):
+    data = json.loads(stability(["creep-1d", "--json", "--measure"], capsys))
+    m = data["measured"]
+    assert m["stable_at"] <= m["dt_meas"] <= m["unstable_at"]
+    assert 0.5 <= m["ratio"] <= 1.0
