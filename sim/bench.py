@@ -35,21 +35,24 @@ def square_system(n_elements: int) -> System:
                   ["square"], np.array([0.0, -9.81]), 1e-5, 0, 1)
 
 
-def bench_golden(n_elements: int, min_seconds: float = 1.0) -> dict:
-    sys = square_system(n_elements)
-    g = Golden(sys)
-    st = State.initial(sys)
-    for _ in range(3):
-        g.step(st)
+def _timed(stepper, st, sys: System, min_seconds: float, **labels) -> dict:
+    """Step until at least min_seconds (and 5 steps) have passed; throughput figures."""
+    for _ in range(3):                       # warm-up: caches, first-call costs
+        stepper.step(st)
     steps, t0 = 0, time.perf_counter()
     while True:
-        g.step(st)
+        stepper.step(st)
         steps += 1
         el = time.perf_counter() - t0
         if el >= min_seconds and steps >= 5:
             break
-    return dict(backend="golden", elements=sys.n_elements, nodes=sys.n_nodes, steps=steps,
-                seconds=el, steps_per_s=steps / el, element_updates_per_s=steps * sys.n_elements / el)
+    return dict(**labels, elements=sys.n_elements, nodes=sys.n_nodes, steps=steps, seconds=el,
+                steps_per_s=steps / el, element_updates_per_s=steps * sys.n_elements / el)
+
+
+def bench_golden(n_elements: int, min_seconds: float = 1.0) -> dict:
+    sys = square_system(n_elements)
+    return _timed(Golden(sys), State.initial(sys), sys, min_seconds, backend="golden")
 
 
 def bench_fixed(n_elements: int, min_seconds: float = 1.0, preset: str = "wide") -> dict:
@@ -58,17 +61,7 @@ def bench_fixed(n_elements: int, min_seconds: float = 1.0, preset: str = "wide")
     sys = square_system(n_elements)
     sys.n_steps = 50
     bt = BitTrue(sys, preset, range_steps=50)
-    st = bt.initial_state()
-    bt.step(st)
-    steps, t0 = 0, time.perf_counter()
-    while True:
-        bt.step(st)
-        steps += 1
-        el = time.perf_counter() - t0
-        if el >= min_seconds and steps >= 5:
-            break
-    return dict(backend="fixed", preset=preset, elements=sys.n_elements, nodes=sys.n_nodes, steps=steps,
-                seconds=el, steps_per_s=steps / el, element_updates_per_s=steps * sys.n_elements / el)
+    return _timed(bt, bt.initial_state(), sys, min_seconds, backend="fixed", preset=preset)
 
 
 def run(backend: str, sizes=SIZES, min_seconds: float = 1.0) -> list[dict]:
