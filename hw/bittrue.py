@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from golden.model import System, frame_steps, simulate
+from golden.model import SimulationDiverged, System, frame_steps, simulate
 from .arith import FixedArith, FloatArith
 from .datapath import HwState, Params, step
 from .fixed import Saturations
@@ -101,10 +101,26 @@ class BitTrue:
         return np.stack(st.X, 1), np.stack(st.U, 1), np.asarray(st.A).copy()
 
 
+RUNAWAY_FRACTION = 0.01     # saturations per node and element update that count as a runaway
+
+
+def check_saturations(bt: "BitTrue", steps: int, new: int, preset: str) -> None:
+    """Stop a run whose saturations run away: more than 1 % of the updates of an output interval."""
+    sys = bt.sys
+    limit = max(16, RUNAWAY_FRACTION * (sys.n_nodes + sys.n_elements) * max(steps, 1))
+    if new > limit:
+        top = ", ".join(f"{q} {n}" for q, n in bt.sat.most_common(3))
+        raise SimulationDiverged(
+            f"scene '{sys.name}': runaway saturations in the bit-true model (preset {preset}): {new} in the "
+            f"last {steps} steps (so far: {top}); the formats cannot hold this run: use a wider preset, "
+            f"override formats in [formats], or reduce dt")
+
+
 def simulate_fixed(sys: System, preset="wide", steps=None, every=None, progress=False, bittrue=None):
     """Run the bit-true model; returns (Run in SI units, raw frames dict, BitTrue)."""
     bt = bittrue or BitTrue(sys, preset, range_steps=max(sys.n_steps, steps or 0))
     raws = {"x_raw": [], "v_raw": [], "a_raw": [], "saturations": []}
+    last = {"step": 0, "sat": 0}
 
     class Recorder:
         def initial_state(self):
@@ -114,6 +130,8 @@ def simulate_fixed(sys: System, preset="wide", steps=None, every=None, progress=
             bt.step(st)
 
         def frame(self, st):
+            check_saturations(bt, st.step - last["step"], bt.sat.total - last["sat"], preset)
+            last["step"], last["sat"] = st.step, bt.sat.total
             x, u, a = bt.raw(st)
             raws["x_raw"].append(x)
             raws["v_raw"].append(u)

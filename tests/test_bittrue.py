@@ -145,3 +145,19 @@ def test_scene_can_override_a_format(tmp_path):
     p.write_text(text + '\n[formats]\nx = "Q3.20"\n')
     with pytest.raises(ValueError, match=r"SQ\(i, f\)"):
         load_scene(p)
+
+
+def test_runaway_saturations_stop_the_run(tmp_path):
+    """Formats sized for a gentle press cannot hold a press 1000x stronger: the run stops with a message."""
+    from golden.model import SimulationDiverged
+    gentle = compile_scene(load_scene("press-2d-viscoelastic"))
+    bt_gentle = BitTrue(gentle, "narrow", range_steps=gentle.n_steps)
+    text = (ROOT / "golden" / "scenes" / "press-2d-viscoelastic.toml").read_text()
+    p = tmp_path / "hard.toml"
+    p.write_text(text.replace("force = [0.0, -0.05]", "force = [0.0, -50.0]"))
+    hard = compile_scene(load_scene(p))
+    bt_hard = BitTrue(hard, "narrow", formats=bt_gentle.formats)
+    with pytest.raises(SimulationDiverged, match="runaway saturations"):
+        simulate_fixed(hard, "narrow", steps=3000, every=100, bittrue=bt_hard)
+    run, _, bt = simulate_fixed(gentle, "narrow", steps=3000, every=100, bittrue=BitTrue(gentle, "narrow", formats=bt_gentle.formats))
+    assert bt.sat.total == 0
