@@ -10,7 +10,6 @@ except over the (few) load entries and the D axes of a scatter.
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 

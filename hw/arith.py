@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .fixed import Saturations, Shape, add, mul, round_into, shift_round
+from .fixed import Saturations, Shape, add, mul, round_into
 
 
 @dataclass

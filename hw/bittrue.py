@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from golden.model import SimulationDiverged, System, frame_steps, simulate
+from golden.model import SimulationDiverged, System, simulate
 from .arith import FixedArith, FloatArith
 from .datapath import HwState, Params, step
 from .fixed import Saturations

@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from golden.model import System
-from .arith import V
 from .units import HardwareUnits
 
 

@@ -20,7 +20,7 @@ material = {{ preset = "viscoelastic", node_mass = 1e-3 }}
 position = [{x}, {y}]
 """)
     p = tmp_path / f"row{n}_{seed}.toml"
-    p.write_text(f"""
+    p.write_text("""
 dim = 2
 [integrator]
 dt = 1e-4

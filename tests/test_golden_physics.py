@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from golden.elements import ElementParams, element_forces
-from golden.model import Golden, SimulationDiverged, State, simulate
+from golden.model import SimulationDiverged, simulate
 from golden.scene import compile_scene, load_scene
 
 
