@@ -258,6 +258,24 @@ class _Painter:
         self.cell_colours = colours[run["cell_object"]] if len(cells) else np.zeros((0, 4))
         self.node_colours = colours[run["node_object"]]
         self.lw = _line_width(len(edges))
+        # 3D: draw the shaded surface of each object (its boundary triangles), not every interior element
+        self.surface = None
+        if self.D == 3 and len(cells):
+            from golden.mesh import boundary_faces
+            self.surface, _ = boundary_faces(cells, run["x"][0])
+            self.surface_colours = colours[run["node_object"][self.surface[:, 0]]]
+
+    def shaded(self, x: np.ndarray) -> np.ndarray:
+        """Surface face colours lit from above-front: a dent shows as a change of shade."""
+        p = x[self.surface]
+        n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        light = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+        k = 0.45 + 0.55 * np.clip(n @ light, 0.0, 1.0)
+        rgba = self.surface_colours.copy()
+        rgba[:, :3] *= k[:, None]
+        rgba[:, 3] = 0.9
+        return rgba
 
     def segments(self, x: np.ndarray) -> list[np.ndarray]:
         """One (3 E_k, D) polyline per object: start, end, NaN for each of its elements."""
@@ -310,7 +328,12 @@ class _Painter:
             (art["pinned"],) = ax.plot(x[pinned, 0], x[pinned, 1], ls="none", marker="o", ms=3,
                                        color="k", zorder=3)
         else:
-            if len(edges):
+            if self.surface is not None:
+                pc = Poly3DCollection(x[self.surface], facecolors=self.shaded(x), edgecolors=(0, 0, 0, 0.25),
+                                      linewidths=0.3)
+                ax.add_collection3d(pc)
+                art["surface"] = pc
+            elif len(edges):
                 lc = Line3DCollection(self.segments(x), colors=self.edge_colours, linewidths=self.lw)
                 ax.add_collection3d(lc)
                 art["edges"] = lc
@@ -329,6 +352,9 @@ class _Painter:
             art["cells"].set_verts(x[run["cells"]])
         if "edges" in art:
             art["edges"].set_segments(self.segments(x))
+        if "surface" in art:
+            art["surface"].set_verts(x[self.surface])
+            art["surface"].set_facecolor(self.shaded(x))
         if "nodes" in art:
             art["nodes"].set_offsets(x)
         if "nodes3" in art:
