@@ -253,7 +253,7 @@ class _Geometry:
 
     def weights(self, diag=None) -> np.ndarray:
         """Weight of each (end, element) entry in the bound of its end node i (other end j):
-        w = 1 + (m_i / m_j) r with r = sqrt(d_j / d_i) (d: the nodes' diagonal per unit mass, r = 1 without),
+        w = 1 + (m_i / m_j) r with r = sqrt(d_j / d_i) (d: the nodes' diagonal sums, r = 1 without),
         w = 1 when j is pinned, 0 when i is pinned."""
         m, free, ends, other = self.m, self.free, self.ends, self.other
         r = 1.0
@@ -440,8 +440,8 @@ def node_terms(sys: System) -> dict:
     # for stiffness, one for damping), scaled by the mesh factor
     kmax = np.maximum(k1 * a_max, k1)
     cmax = np.maximum(np.maximum(c1 * a_max, c1), np.where(moving, c_max, 0.0))
-    wk = geo.weights(geo.total(kmax) / m)
-    wc = geo.weights(geo.total(cmax) / m)
+    wk = geo.weights(geo.total(kmax))        # plain sums: the mass ratio enters once, in weights()
+    wc = geo.weights(geo.total(cmax))
     phi = mesh_factor(sys, geo)
     t["phi"] = phi
     scale = np.minimum(1.0, (1.0 + MESH_MARGIN) * phi)
