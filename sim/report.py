@@ -113,13 +113,8 @@ def _plots(out: Path, cols: dict, summary: dict) -> None:
             ax.semilogy(t, np.maximum(cols[key], floor), style, label=label)
     ax.axhline(1e-4, color="grey", lw=0.8, ls=":", label="budget 1e-4 (wide)")
     ax.set_ylim(bottom=floor)
-    ax.set_xlabel("simulated time [s]")
-    ax.set_ylabel("max position error / object size")
-    ax.set_title(f"{summary['scene']}: error against simulated time")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "error_vs_time.png", dpi=110)
-    plt.close(fig)
+    _finish(fig, ax, "simulated time [s]", f"{summary['scene']}: error against simulated time",
+            out / "error_vs_time.png")
 
     fig, ax = plt.subplots(figsize=(6, 4.5))
     floor = 1e-11
@@ -130,10 +125,16 @@ def _plots(out: Path, cols: dict, summary: dict) -> None:
     for label, d in summary["discretisation"].items():
         if isinstance(d, dict) and "max_relative" in d:
             ax.loglog(d["run_time_per_simulated_second"], max(d["max_relative"], floor), "s", label=f"golden {label}")
-    ax.set_xlabel("wall seconds per simulated second (this machine)")
+    _finish(fig, ax, "wall seconds per simulated second (this machine)",
+            f"{summary['scene']}: accuracy against cost", out / "cost_vs_accuracy.png")
+
+
+def _finish(fig, ax, xlabel: str, title: str, path: Path) -> None:
+    import matplotlib.pyplot as plt
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("max position error / object size")
-    ax.set_title(f"{summary['scene']}: accuracy against cost")
+    ax.set_title(title)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "cost_vs_accuracy.png", dpi=110)
+    fig.savefig(path, dpi=110)
     plt.close(fig)

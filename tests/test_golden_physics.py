@@ -9,6 +9,7 @@ import pytest
 from golden.elements import ElementParams, element_forces
 from golden.model import SimulationDiverged, simulate
 from golden.scene import compile_scene, load_scene
+from measures import quarter_sinks
 
 
 def scene_from(tmp_path, text: str, name="scene"):
@@ -283,12 +284,7 @@ def test_press_recovery(name, lo, hi):
 
 def _sink_rates(name):
     sys = compile_scene(load_scene(name))
-    run = simulate(sys)
-    top = np.flatnonzero(sys.x0[:, -1] == sys.x0[:, -1].max())
-    y = run.x[:, top, -1].mean(1)
-    T = run.t[-1]
-    q = [np.interp(k * T / 4, run.t, y) for k in range(5)]
-    return q[0] - q[1], q[3] - q[4]
+    return quarter_sinks(sys, simulate(sys))
 
 
 def test_linear_damper_keeps_sinking_under_gravity():

@@ -11,6 +11,7 @@ from itertools import combinations
 
 import numpy as np
 import pytest
+from measures import quarter_sinks
 
 from golden.model import simulate
 from golden.scene import compile_scene, load_scene
@@ -98,11 +99,7 @@ def test_pressed_box_comes_to_rest_after_release(name):
 def _sink(name):
     """Sink of the top face's mean height in the first and in the last quarter of the run."""
     _, sys, run = _run(name)
-    top = np.flatnonzero(sys.x0[:, 2] == sys.x0[:, 2].max())
-    z = run.x[:, top, 2].mean(1)
-    T = run.t[-1]
-    q = [np.interp(k * T / 4, run.t, z) for k in range(5)]
-    return q[0] - q[1], q[3] - q[4]
+    return quarter_sinks(sys, run)
 
 
 def test_linear_damper_keeps_sinking_under_gravity():
