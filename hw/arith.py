@@ -25,12 +25,68 @@ class V:
     q: str
 
 
-class FloatArith:
-    """float64 arithmetic; `peak[q]` is the largest |value| seen for quantity q."""
+class Gate:
+    """The items of an array for which a condition holds (the hardware gates the same items with a flag).
+
+    `take` keeps the active items, `expand` puts active items back into a full array with zeros
+    elsewhere, `gate` nests a further condition. `empty`: no active item (the array code skips the rest).
+    """
+
+    def __init__(self, ar, cond, parent=None, n=None):
+        self.ar, self.parent = ar, parent
+        self.idx = np.flatnonzero(cond)
+        self.n = len(cond) if n is None else n
+        self.size = self.idx.size
+        self.empty = self.size == 0
+
+    def take(self, v):
+        return self.ar.take(v, self.idx)
+
+    def gate(self, cond):
+        return Gate(self.ar, cond, self)
+
+    def expand(self, v):
+        out = np.zeros(self.n, v.x.dtype)
+        out[self.idx] = v.x
+        full = V(out, v.q)
+        return self.parent.expand(full) if self.parent is not None else full
+
+    @property
+    def full_idx(self):
+        return self.idx if self.parent is None else self.parent.full_idx[self.idx]
+
+
+class _ArrayArith:
+    """What both array arithmetics share: per-item parameters, flags, gates, step windows."""
+
+    def param(self, q, value):
+        """A per-item parameter (array) or a scalar; in hardware a ROM field or a constant."""
+        return self.const(q, value)
+
+    def flag(self, name, values):
+        return np.asarray(values, bool)
+
+    def window(self, step_no, first, end):
+        return first <= step_no < end
+
+    def gate(self, cond):
+        return Gate(self, cond)
+
+
+class FloatArith(_ArrayArith):
+    """float64 arithmetic; `peak[q]` is the largest |value| seen for quantity q.
+
+    With `open_gates` every gate lets every item through (a probe that reaches every quantity, even
+    ones a run never uses, such as contact forces of a scene that never touches the floor).
+    """
     exact = True
 
-    def __init__(self):
+    def __init__(self, open_gates: bool = False):
         self.peak = defaultdict(float)
+        self.open_gates = open_gates
+
+    def gate(self, cond):
+        return Gate(self, np.ones(np.shape(cond), bool) if self.open_gates else cond)
 
     def _rec(self, q, x):
         x = np.asarray(x, float)
@@ -95,21 +151,24 @@ class FloatArith:
         return V(np.zeros(n), q)
 
     def scatter(self, parts, n, q):
-        """Sum of (values, node indices) contributions per node."""
+        """Exact per-node sums of (values, node indices) contributions in q's binary point (not rounded,
+        not range-recorded: the node kernel rounds them)."""
         out = np.zeros(n)
         for v, idx in parts:
             out += np.bincount(idx, weights=v.x, minlength=n)
-        return self._rec(q, out)
+        return V(out, q)
 
 
-class FixedArith:
+class FixedArith(_ArrayArith):
     """Bit-true fixed-point arithmetic with the formats of `fmt` (quantity -> Shape)."""
     exact = False
 
-    def __init__(self, fmt: dict, units: dict | None = None, sat: Saturations | None = None):
+    def __init__(self, fmt: dict, units: dict | None = None, sat: Saturations | None = None,
+                 const_sat: Saturations | None = None):
         self.fmt = fmt
         self.units = units or {}          # function units by name: "rsqrt", "damper"
-        self.sat = sat if sat is not None else Saturations()
+        self.sat = sat if sat is not None else Saturations()                 # run time (the hardware counts)
+        self.const_sat = const_sat if const_sat is not None else Saturations()   # constants (compile time)
         self._consts = {}
 
     def shape(self, q) -> Shape:
@@ -121,7 +180,7 @@ class FixedArith:
     def const(self, q, value):
         key = (q, id(value)) if isinstance(value, np.ndarray) else (q, float(value))
         if key not in self._consts:
-            self._consts[key] = V(self.shape(q).from_float(value, self.sat, q), q)
+            self._consts[key] = V(self.shape(q).from_float(value, self.const_sat, q), q)
         return self._consts[key]
 
     def state(self, q, raw):
@@ -186,16 +245,19 @@ class FixedArith:
         return V(np.zeros(n, np.int64), q)
 
     def scatter(self, parts, n, q):
-        """Per-node sums in an accumulator wide enough never to overflow, then one rounding into q.
+        """Exact per-node sums of (values, node indices) contributions at q's binary point, not rounded.
 
-        Integer sums are order independent, so any hardware accumulation order gives these bits.
+        Integer sums are order independent, so any hardware accumulation order gives these bits; the
+        node kernel rounds them once (with the floor and load forces) into the node force format.
         """
-        f = max(self.shape(v.q).f for v, _ in parts)
+        f = self.shape(q).f
+        for v, _ in parts:
+            if self.shape(v.q).f > f:
+                raise ValueError(f"scatter into '{q}': '{v.q}' has a finer binary point")
         idx = np.concatenate([np.broadcast_to(i, np.shape(i)) for _, i in parts])
         val = np.concatenate([np.broadcast_to(np.asarray(v.x, np.int64) << (f - self.shape(v.q).f), np.shape(i))
                               for v, i in parts])
-        acc = _bincount_int(idx, val, n)
-        return V(round_into(acc, f, self.shape(q), self.sat, q), q)
+        return V(_bincount_int(idx, val, n), q)
 
 
 def _bincount_int(idx, w, n):

@@ -38,6 +38,12 @@ def range_analysis(sys: System, params: Params, units: HardwareUnits, steps: int
     for _ in range(sys.n_steps if steps is None else steps):
         st = step(ar, st, params)
     peaks = dict(ar.peak)
+    # quantities the run never reached (a contact that never happens) still need formats: take their
+    # ranges from one step of the initial state with every gate open
+    probe = FloatArith(open_gates=True)
+    step(probe, float_state(sys, units, sys.x0, sys.v0, sys.a0), params)
+    for q, v in probe.peak.items():
+        peaks.setdefault(q, v)
     if params.damper is not None:      # the tables span the whole curve, whatever the run visited
         dp = params.damper
         peaks["c2"] = max(peaks.get("c2", 0.0), dp.c1 + dp.c_max)
@@ -75,16 +81,17 @@ class BitTrue:
             peaks = range_analysis(sys, self.params, self.units, range_steps)
             formats = derive(peaks, PRESETS[preset], {**sys.formats, **(overrides or {})})
         self.formats = formats
-        self.sat = Saturations()
-        self.ar = FixedArith(formats, function_units(formats, self.params), self.sat)
+        self.sat = Saturations()          # saturations of the run (what the hardware counts)
+        self.const_sat = Saturations()    # saturations converting constants and the initial state
+        self.ar = FixedArith(formats, function_units(formats, self.params), self.sat, self.const_sat)
 
     def initial_state(self) -> HwState:
         sys, fm = self.sys, self.formats
         X = self.units.length(sys.x0)
         U = self.units.velocity(sys.v0)
-        return HwState([fm["x"].from_float(X[:, k], self.sat, "x") for k in range(sys.dim)],
-                       [fm["u"].from_float(U[:, k], self.sat, "u") for k in range(sys.dim)],
-                       fm["a"].from_float(sys.a0, self.sat, "a"),
+        return HwState([fm["x"].from_float(X[:, k], self.const_sat, "x") for k in range(sys.dim)],
+                       [fm["u"].from_float(U[:, k], self.const_sat, "u") for k in range(sys.dim)],
+                       fm["a"].from_float(sys.a0, self.const_sat, "a"),
                        np.zeros(sys.n_elements, np.int64), 0)
 
     def step(self, st: HwState) -> None:

@@ -137,67 +137,120 @@ class HwState:
 
 
 def step(ar, st: HwState, p: Params) -> HwState:
-    """One time step; returns the new state (values as the arithmetic holds them)."""
+    """One time step of the whole system on arrays (float or bit-true); returns the new state.
+
+    Gathers node values per element / pair, runs the per-item kernels below on whole arrays, and
+    scatters their forces: exactly what the hardware pipelines do one item per clock.
+    """
     D, N = p.dim, p.n_nodes
     X = [ar.state("x", x) for x in st.X]
     U = [ar.state("u", u) for u in st.U]
     A = ar.state("a", st.A)
+    FP = ar.state("force", st.FP)
 
     # ---- elements
-    d = [ar.sub(ar.take(X[k], p.j), ar.take(X[k], p.i), "d") for k in range(D)]
-    du = [ar.sub(ar.take(U[k], p.j), ar.take(U[k], p.i), "du") for k in range(D)]
+    take = lambda vs, idx: [ar.take(v, idx) for v in vs]
+    fe, newA, newFP = element_kernel(ar, p, take(X, p.i), take(X, p.j), take(U, p.i), take(U, p.j), A, FP)
+    parts = [[(fe[k], p.i), (ar.neg(fe[k]), p.j)] for k in range(D)]
+
+    # ---- topology preservation
+    if p.topology is not None:
+        pairs = p.topology["pairs"]
+        roles = [pairs[:, 0]] + [pairs[:, 1 + m] for m in range(D)]
+        gate, contribs = pair_kernel(ar, p, *[take(X, r) for r in roles], *[take(U, r) for r in roles])
+        for k, v, role in contribs:
+            parts[k].append((v, roles[role][gate.idx]))
+
+    F_elem = [ar.scatter(parts[k], N, "fe") for k in range(D)]     # exact sums, no rounding yet
+
+    # ---- nodes
+    newX, newU = node_kernel(ar, p, X, U, F_elem, st.step, _node_flags(p))
+    return HwState([x.x for x in newX], [u.x for u in newU], newA.x if newA is not None else st.A,
+                   newFP.x if newFP is not None else st.FP, st.step + 1)
+
+
+def _node_flags(p: Params) -> dict:
+    """Per-node boolean arrays the node kernel selects on (cached on the Params)."""
+    if getattr(p, "_flags", None) is None:
+        flags = {"free": p.free}
+        for n, (nodes, _, _, _) in enumerate(p.loads):
+            member = np.zeros(p.n_nodes, bool)
+            member[nodes] = True
+            flags[f"load{n}"] = member
+        p._flags = flags
+    return p._flags
+
+
+def load_window(p: Params, n: int) -> tuple[int, int]:
+    """The steps [first, end) during which load n acts: start <= step dt < end, as the float test says."""
+    _, _, start, end = p.loads[n]
+    first = lambda t: next(s for s in range(max(int(np.floor(t / p.dt)) - 2, 0), 1 << 62) if s * p.dt >= t)
+    a = first(start)
+    b = max(first(end), a) if np.isfinite(end) else 1 << 62
+    return a, b
+
+
+def element_kernel(ar, p: Params, Xi, Xj, Ui, Uj, A, FP):
+    """One element (per item): returns (fe per dimension, new a or None, new |T| or None).
+
+    Node i receives +fe, node j -fe (the same word).
+    """
+    D = p.dim
+    d = [ar.sub(Xj[k], Xi[k], "d") for k in range(D)]
+    du = [ar.sub(Uj[k], Ui[k], "du") for k in range(D)]
     l2 = ar.sum([ar.mul(dk, dk, "l2") for dk in d], "l2")
     inv_l = ar.rsqrt(l2, "inv_l")
     l = ar.mul(l2, inv_l, "l")
     e = [ar.mul(dk, inv_l, "e") for dk in d]
     ldot = ar.sum([ar.mul(e[k], du[k], "ldot") for k in range(D)], "ldot")
-    s = ar.sub(ar.mul(A, l, "l"), ar.const("L", p.L), "s")
-    k1s = ar.mul(ar.const("k1", p.k1), s, "force") if p.k1 is not None else ar.zeros("force", len(p.i))
-    adot = None
+    s = ar.sub(ar.mul(A, l, "l"), ar.param("L", p.L), "s")
+    k1s = ar.mul(ar.param("k1", p.k1), s, "force") if p.k1 is not None else ar.zeros("force", len(p.i))
+    newA = newFP = None
     if p.fixed_a:
-        T = ar.add(k1s, ar.mul(ar.const("c1a", p.c1a), ldot, "force"), "force")
+        T = ar.add(k1s, ar.mul(ar.param("c1a", p.c1a), ldot, "force"), "force")
     else:
         if p.damper is not None:
-            c2, c12, ic12 = ar.damper(ar.state("force", st.FP), p.damper)
+            c2, c12, ic12 = ar.damper(FP, p.damper)
         else:
-            c2, c12, ic12 = ar.const("c2", p.c2), ar.const("c12", p.c12), ar.const("ic12", p.ic12)
+            c2, c12, ic12 = ar.param("c2", p.c2), ar.param("c12", p.c12), ar.param("ic12", p.ic12)
         g = ar.sub(c2, ar.mul(c12, A, "c12"), "c12")
         num = ar.sub(ar.mul(g, ldot, "force"), k1s, "force")
         adot = ar.mul(ar.mul(num, ic12, "num_ic"), inv_l, "adot")
         zero = ar.zeros("adot", len(p.i))
-        a_min, a_max = ar.const("a", p.a_min), ar.const("a", p.a_max)
+        a_min, a_max = ar.param("a", p.a_min), ar.param("a", p.a_max)
         outward = (ar.le(A, a_min) & ar.lt(adot, zero)) | (ar.le(a_max, A) & ar.lt(zero, adot))
         adot = ar.select(~outward, adot, zero)
         sdot = ar.add(ar.mul(adot, l, "sdot"), ar.mul(A, ldot, "sdot"), "sdot")
-        T = ar.add(k1s, ar.mul(ar.const("c1", p.c1), sdot, "force"), "force")
+        T = ar.add(k1s, ar.mul(ar.param("c1", p.c1), sdot, "force"), "force")
+        a = ar.add(A, adot, "a")
+        a = ar.select(ar.le(a, a_min), a_min, a)
+        newA = ar.select(ar.le(a_max, a), a_max, a)
     fe = [ar.mul(T, e[k], "fe") for k in range(D)]
-    parts = [[(fe[k], p.i), (ar.neg(fe[k]), p.j)] for k in range(D)]
+    if p.damper is not None:
+        newFP = ar.select(ar.lt(T, ar.zeros("force", len(p.i))), ar.neg(T), T)
+    return fe, newA, newFP
 
-    # ---- topology preservation
-    if p.topology is not None:
-        _topology(ar, X, U, p, parts)
 
-    # ---- floor
+def node_kernel(ar, p: Params, X, U, F_elem, step_no, flags):
+    """One node (per item): forces from elements and pairs (exact sums), floor, loads -> new u and x."""
+    D = p.dim
+    terms = [[F_elem[k]] for k in range(D)]
     if p.floor is not None:
-        _floor(ar, X, U, p, parts)
-
-    # ---- loads
-    t = st.step * p.dt
-    for nodes, force, start, end in p.loads:
-        if start <= t < end:
-            for k in range(D):
-                if force[k] is not None:
-                    parts[k].append((ar.const("load", force[k]), nodes))
-
-    F = [ar.scatter(parts[k], N, "facc") for k in range(D)]
-
-    # ---- nodes
-    free = p.free
-    zero_u = ar.zeros("u", N)
+        for k, v in floor_kernel(ar, p, X, U):
+            terms[k].append(v)
+    for n, (nodes, force, _, _) in enumerate(p.loads):
+        first, end = load_window(p, n)
+        on = ar.flag(f"load{n}", flags[f"load{n}"]) & ar.window(step_no, first, end)
+        for k in range(D):
+            if force[k] is not None:
+                terms[k].append(ar.select(on, ar.const("load", float(force[k][0])), ar.zeros("load", 1)))
+    F = [ar.sum(terms[k], "facc") for k in range(D)]
+    free = ar.flag("free", flags["free"])
+    zero_u = ar.zeros("u", 1)
     newU, newX = [], []
     for k in range(D):
         if p.inv_mass is not None:
-            dv = ar.mul(ar.const("inv_mass", p.inv_mass), ar.convert(F[k], "fnode"), "dv")
+            dv = ar.mul(ar.param("inv_mass", p.inv_mass), ar.convert(F[k], "fnode"), "dv")
         else:
             dv = ar.convert(F[k], "dv")
         u = ar.add(U[k], dv, "u")
@@ -206,28 +259,20 @@ def step(ar, st: HwState, p: Params) -> HwState:
         u = ar.select(free, u, zero_u)
         newU.append(u)
         newX.append(ar.add(X[k], u, "x"))
-    if adot is not None:
-        a = ar.add(A, adot, "a")
-        a = ar.select(ar.le(a, a_min), a_min, a)
-        a = ar.select(ar.le(a_max, a), a_max, a)
-        newA = a.x
-    else:
-        newA = st.A
-    newFP = ar.select(ar.lt(T, ar.zeros("force", len(p.i))), ar.neg(T), T).x if p.damper is not None else st.FP
-    return HwState([x.x for x in newX], [u.x for u in newU], newA, newFP, st.step + 1)
+    return newX, newU
 
 
-def _facet_normal(ar, X, facet):
-    """Unit normal of each facet (the golden orientation rule) from positions; returns (n, inv_len)."""
-    D = len(X)
+def _facet_normal(ar, XF):
+    """Unit normal of a facet (the golden orientation rule) from its vertices; returns (n, inv_len, edges)."""
+    D = len(XF[0])
     if D == 2:
-        u = [ar.sub(ar.take(X[k], facet[:, 1]), ar.take(X[k], facet[:, 0]), "tr") for k in range(2)]
+        u = [ar.sub(XF[1][k], XF[0][k], "tr") for k in range(2)]
         n2 = ar.sum([ar.mul(c, c, "tl2") for c in u], "tl2")
         inv = ar.rsqrt(n2, "tinv")
         n = [ar.neg(ar.mul(u[1], inv, "e")), ar.mul(u[0], inv, "e")]
         return n, inv, u
-    e1 = [ar.sub(ar.take(X[k], facet[:, 1]), ar.take(X[k], facet[:, 0]), "tr") for k in range(3)]
-    e2 = [ar.sub(ar.take(X[k], facet[:, 2]), ar.take(X[k], facet[:, 0]), "tr") for k in range(3)]
+    e1 = [ar.sub(XF[1][k], XF[0][k], "tr") for k in range(3)]
+    e2 = [ar.sub(XF[2][k], XF[0][k], "tr") for k in range(3)]
     c = [ar.sub(ar.mul(e1[(k + 1) % 3], e2[(k + 2) % 3], "tl2"), ar.mul(e1[(k + 2) % 3], e2[(k + 1) % 3], "tl2"), "tl2")
          for k in range(3)]
     n2 = ar.sum([ar.mul(ck, ck, "tl4") for ck in c], "tl4")
@@ -236,23 +281,25 @@ def _facet_normal(ar, X, facet):
     return n, inv, (e1, e2)
 
 
-def _topology(ar, X, U, p: Params, parts):
+def pair_kernel(ar, p: Params, *nodes):
+    """One topology pair (vertex, facet): returns (gate, [(dim, force, role)]), role 0 = the vertex,
+    role m = facet vertex m - 1. Only pairs with d <= eps (the gate) act; the forces sum to exactly 0."""
     D = p.dim
     tp = p.topology
-    pairs = tp["pairs"]
-    k_, facet = pairs[:, 0], pairs[:, 1:]
-    n, inv, edges = _facet_normal(ar, X, facet)
-    r = [ar.sub(ar.take(X[k], k_), ar.take(X[k], facet[:, 0]), "tr") for k in range(D)]
+    XV, XF = nodes[0], nodes[1:D + 1]
+    UV, UF = nodes[D + 1], nodes[D + 2:]
+    n, inv, edges = _facet_normal(ar, XF)
+    r = [ar.sub(XV[k], XF[0][k], "tr") for k in range(D)]
     dist = ar.sum([ar.mul(r[k], n[k], "tdist") for k in range(D)], "tdist")
     eps = ar.const("eps", tp["eps"])
-    act = np.flatnonzero(ar.le(dist, eps))
-    if act.size == 0:
-        return
-    sub = lambda v: ar.take(v, act)
+    gate = ar.gate(ar.le(dist, eps))
+    if gate.empty:
+        return gate, []
+    sub = gate.take
     n, r, dist = [sub(c) for c in n], [sub(c) for c in r], sub(dist)
-    k_, facet = k_[act], facet[act]
+    UV, UF = [sub(c) for c in UV], [[sub(c) for c in uf] for uf in UF]
     one = ar.const("w", 1.0)
-    zero_w = ar.zeros("w", act.size)
+    zero_w = ar.zeros("w", gate.size)
     if D == 2:
         u = [sub(c) for c in edges]
         inv = sub(inv)
@@ -279,57 +326,59 @@ def _topology(ar, X, U, p: Params, parts):
     # relative velocity of the vertex and its foot: (u_k - u_0) - sum_m w_m (u_m - u_0)
     vrel = []
     for k in range(D):
-        u0 = ar.take(U[k], facet[:, 0])
-        v = ar.sub(ar.take(U[k], k_), u0, "du")
+        u0 = UF[0][k]
+        v = ar.sub(UV[k], u0, "du")
         for m, w in enumerate(w_rest, start=1):
-            v = ar.sub(v, ar.mul(w, ar.sub(ar.take(U[k], facet[:, m]), u0, "du"), "du"), "du")
+            v = ar.sub(v, ar.mul(w, ar.sub(UF[m][k], u0, "du"), "du"), "du")
         vrel.append(v)
     ddot = ar.sum([ar.mul(vrel[k], n[k], "ldot") for k in range(D)], "ldot")
     f = ar.sub(ar.mul(ar.const("topo_K", tp["K"]), ar.sub(eps, dist, "tdist"), "force"),
                ar.mul(ar.const("topo_C", tp["C"]), ddot, "force"), "force")
+    out = []
     for k in range(D):
         Fk = ar.mul(f, n[k], "fe")
-        parts[k].append((Fk, k_))
+        out.append((k, Fk, 0))
         rest_sum = None
         for m, w in enumerate(w_rest, start=1):
             Fm = ar.mul(w, Fk, "fe")
-            parts[k].append((ar.neg(Fm), facet[:, m]))
+            out.append((k, ar.neg(Fm), 1 + m))
             rest_sum = Fm if rest_sum is None else ar.add(rest_sum, Fm, "fe")
         # the first facet vertex takes the remainder, so the pair's forces sum to exactly zero
-        parts[k].append((ar.neg(ar.sub(Fk, rest_sum, "fe")), facet[:, 0]))
+        out.append((k, ar.neg(ar.sub(Fk, rest_sum, "fe")), 1))
+    return gate, out
 
 
-def _floor(ar, X, U, p: Params, parts):
+def floor_kernel(ar, p: Params, X, U):
+    """Floor contact and friction of one node: [(dim, force)], zero where the node is above the floor."""
     D, fl = p.dim, p.floor
     z = D - 1
     h = ar.sub(X[z], ar.const("x", fl["h"]), "tdist")
-    act = np.flatnonzero(ar.lt(h, ar.zeros("tdist", 1)))
-    if act.size == 0:
-        return
-    h = ar.take(h, act)
-    uz = ar.take(U[z], act)
+    gate = ar.gate(ar.lt(h, ar.zeros("tdist", 1)))
+    if gate.empty:
+        return []
+    h, uz = gate.take(h), gate.take(U[z])
     N = ar.sub(ar.mul(ar.const("floor_K", fl["K"]), ar.neg(h), "force"),
                ar.mul(ar.const("floor_C", fl["C"]), uz, "force"), "force")
-    zero = ar.zeros("force", act.size)
+    zero = ar.zeros("force", gate.size)
     N = ar.select(ar.lt(N, zero), zero, N)
-    parts[z].append((N, act))
+    out = [(z, gate.expand(N))]
     if fl["mu"] <= 0.0:
-        return
+        return out
     muN = ar.mul(ar.const("mu", fl["mu"]), N, "force")
-    kfu = [ar.mul(ar.const("floor_kf", fl["kf"]), ar.take(U[k], act), "force") for k in range(D - 1)]
+    kfu = [ar.mul(ar.const("floor_kf", fl["kf"]), gate.take(U[k]), "force") for k in range(D - 1)]
     if D == 2:
         f = kfu[0]
         f = ar.select(ar.lt(muN, f), muN, f)
         f = ar.select(ar.lt(f, ar.neg(muN)), ar.neg(muN), f)
-        parts[0].append((ar.neg(f), act))
-        return
+        return out + [(0, gate.expand(ar.neg(f)))]
     mag2 = ar.sum([ar.mul(c, c, "fmag2") for c in kfu], "fmag2")
-    slip = np.flatnonzero(ar.lt(ar.zeros("fmag2", 1), mag2))     # no slip, no friction (and no rsqrt(0))
-    if slip.size == 0:
-        return
-    inv = ar.rsqrt(ar.take(mag2, slip), "finv")
-    ratio = ar.mul(ar.take(muN, slip), inv, "w")
+    slip = gate.gate(ar.lt(ar.zeros("fmag2", 1), mag2))     # no slip, no friction (and no rsqrt(0))
+    if slip.empty:
+        return out
+    inv = ar.rsqrt(slip.take(mag2), "finv")
+    ratio = ar.mul(slip.take(muN), inv, "w")
     one = ar.const("w", 1.0)
     ratio = ar.select(ar.lt(one, ratio), one, ratio)
     for k in range(D - 1):
-        parts[k].append((ar.neg(ar.mul(ar.take(kfu[k], slip), ratio, "force")), act[slip]))
+        out.append((k, slip.expand(ar.neg(ar.mul(slip.take(kfu[k]), ratio, "force")))))
+    return out

@@ -113,6 +113,8 @@ class Saturations(Counter):
 
 def shift_round(raw: np.ndarray, shift: int) -> np.ndarray:
     """raw * 2^-shift rounded to nearest (ties up) for shift > 0; exact left shift for shift <= 0."""
+    if shift > 62:            # every int64 operand of this model is below 2^62 in magnitude: rounds to 0
+        return np.zeros_like(raw)
     if shift > 0:
         return (raw + (1 << (shift - 1))) >> shift
     if shift < 0:

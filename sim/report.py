@@ -66,7 +66,7 @@ def build(sys: System, out_dir, presets=("narrow", "medium", "wide"), max_ref_st
         mx, rms, rel = _errors(run.x, gold.x, size)
         cols[f"quant_max_m_{preset}"], cols[f"quant_rms_m_{preset}"], cols[f"quant_max_rel_{preset}"] = mx, rms, rel
         summary["quantisation"][preset] = {"max_m": float(mx.max()), "rms_m": float(rms.max()),
-                                           "max_relative": float(rel.max()), "saturations": dict(bt.sat),
+                                           "max_relative": float(rel.max()), "saturations": dict(bt.sat), "constant_saturations": dict(bt.const_sat),
                                            "wall_s": wall}
         summary["run_time_per_simulated_second"][f"fixed-{preset}"] = wall / T
 

@@ -13,6 +13,8 @@ from golden.scene import builtin_names, compile_scene, load_scene
 from hw.bittrue import BitTrue, simulate_fixed
 from hw.fixed import SQ, UQ, Saturations, add, mul, shift_round
 
+from conftest import bittrue as cached_bittrue
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -59,7 +61,7 @@ def test_wide_preset_within_budget_of_golden_over_the_whole_scene(name):
     sys_ = compile_scene(load_scene(name))
     every = max(1, sys_.n_steps // 50)
     gold = simulate(sys_, every=every)
-    run, raws, bt = simulate_fixed(sys_, "wide", every=every)
+    run, raws, bt = simulate_fixed(sys_, "wide", every=every, bittrue=cached_bittrue(name, "wide"))
     size = np.ptp(sys_.x0, axis=0).max()
     err = np.abs(run.x - gold.x).max() / size
     assert bt.sat.total == 0, dict(bt.sat)
