@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= out
 
-.PHONY: run test venv bench clean
+.PHONY: run test venv bench clean verilator
 
 venv: $(STAMP)
 
@@ -25,6 +25,10 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/rheo bench --backend golden --json
+
+## Pinned Verilator 5.048 (cocotb 2.x needs >= 5.036), built once into $RHEO_CACHE (default ~/.cache/rheo-fpga).
+verilator:
+	bash tools/build-verilator.sh
 
 clean:
 	rm -rf $(VENV) $(OUT) .pytest_cache

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 DEFAULT_SCENE = "press-2d-rheological"
-BACKENDS = ("golden", "fixed")
+BACKENDS = ("golden", "fixed", "amaranth", "icarus", "verilator")
 PRESETS = ("narrow", "medium", "wide")
 
 
@@ -32,7 +32,7 @@ def _load_system(ref: str):
     return compile_scene(load_scene(ref))
 
 
-def _simulate(sys_, backend: str, steps, every, progress=True, preset="wide"):
+def _simulate(sys_, backend: str, steps, every, progress=True, preset="wide", lanes=1, node_lanes=1):
     """Run a backend; returns (Run, extra run-file arrays)."""
     from golden.model import simulate
     if backend not in BACKENDS:
@@ -41,11 +41,21 @@ def _simulate(sys_, backend: str, steps, every, progress=True, preset="wide"):
         if backend == "golden":
             return simulate(sys_, steps=steps, every=every, progress=progress), {}
         from hw.bittrue import simulate_fixed
-        run, raws, bt = simulate_fixed(sys_, preset, steps=steps, every=every, progress=progress)
+        if backend == "amaranth":
+            from sim.hwsim import simulate_amaranth
+            run, raws, bt, info = simulate_amaranth(sys_, preset, steps=steps, every=every, progress=progress,
+                                                    lanes=lanes, node_lanes=node_lanes)
+        elif backend in ("icarus", "verilator"):
+            from sim.hdlsim import simulate_hdl
+            run, raws, bt, info = simulate_hdl(sys_, backend, preset, steps=steps, every=every, progress=progress,
+                                               lanes=lanes, node_lanes=node_lanes)
+        else:
+            run, raws, bt = simulate_fixed(sys_, preset, steps=steps, every=every, progress=progress)
         names = sorted(bt.sat)
         extra = dict(raws, preset=np.str_(preset), formats=np.str_(json.dumps(bt.formats.to_dict())),
                      saturation_names=np.array(names, dtype=str),
                      saturation_counts=np.array([bt.sat[n] for n in names], np.int64),
+                     constant_saturations=np.str_(json.dumps(dict(bt.const_sat))),
                      units=np.str_(json.dumps(bt.units.to_dict())))
         return run, extra
 
@@ -67,11 +77,57 @@ def cmd_simulate(args) -> int:
     from sim.stability_cmd import refuse_if_unstable
     sys_ = _load_system(args.scene)
     refuse_if_unstable(sys_, args.force)
-    run, extra = _simulate(sys_, args.backend, args.steps, args.every, preset=args.preset)
+    run, extra = _simulate(sys_, args.backend, args.steps, args.every, preset=args.preset,
+                           lanes=args.lanes, node_lanes=args.node_lanes)
     runfile.save(args.out, {**runfile.run_arrays(sys_, run, args.backend), **extra})
     steps = int(round(run.t[-1] / sys_.dt))
     print(f"{sys_.name}: {steps} steps of {sys_.dt:g} s "
           f"({run.t[-1]:g} s simulated) in {run.wall_seconds:.2f} s wall, {len(run.t)} frames -> {args.out}")
+    return 0
+
+
+def cmd_verilog(args) -> int:
+    """Emit the scene's specialised core as Verilog plus manifest.json."""
+    from hw import emit
+    from hw.bittrue import BitTrue
+    sys_ = _load_system(args.scene)
+    print(f"{sys_.name}: range analysis and formats (preset {args.preset})", flush=True)
+    with np.errstate(over="ignore", invalid="ignore"):
+        bt = BitTrue(sys_, args.preset)
+    man = emit.write(bt, args.out, lanes=args.lanes, node_lanes=args.node_lanes)
+    cps = man["cycles_per_step"]
+    print(f"wrote {args.out}/{man['verilog']} ({len(man['verilog_modules'])} modules) and manifest.json")
+    print(f"  units: {', '.join(u['unit'] for u in man['units_present'])}")
+    print(f"  left out: {', '.join(u['unit'] for u in man['units_left_out']) or 'nothing'}")
+    print(f"  {cps['value']} cycles per step = {cps['formula']} (P = {cps['P']}, Q = {cps['Q']}); "
+          f"{len(man['memories'])} memories, {man['memory_bits']} bits")
+    return 0
+
+
+def cmd_synth(args) -> int:
+    """Synthesise the scene's core for an ECP5 (Yosys + nextpnr from PyPI): resources and Fmax."""
+    from hw import emit
+    from hw.bittrue import BitTrue
+    from sim.synth import synthesize
+    sys_ = _load_system(args.scene)
+    out = Path(args.out)
+    print(f"{sys_.name}: range analysis and formats (preset {args.preset})", flush=True)
+    with np.errstate(over="ignore", invalid="ignore"):
+        bt = BitTrue(sys_, args.preset)
+    man = emit.write(bt, out, lanes=args.lanes, node_lanes=args.node_lanes)
+    r = synthesize(out / man["verilog"], man["top"], out, device=args.device, clock_mhz=args.clock_mhz,
+                   progress=True)
+    cps = man["cycles_per_step"]["value"]
+    r["cycles_per_step"] = cps
+    if r.get("fmax_mhz"):
+        r["modelled_steps_per_s"] = r["fmax_mhz"] * 1e6 / cps
+        r["modelled_element_updates_per_s"] = r["modelled_steps_per_s"] * man["elements"]
+    (out / "synth.json").write_text(json.dumps(r, indent=2, default=str))
+    print(f"wrote {out}/synth.json, report.md, {man['verilog']}, manifest.json")
+    print(f"  {r['luts']} LUTs, {r['flip_flops']} FFs, {r['mult18x18']} 18x18 multipliers, {r['block_rams']} block RAMs; "
+          f"Fmax {r['fmax_mhz']} MHz (constraint {args.clock_mhz} MHz, {'met' if r['timing_met'] else 'NOT met'})")
+    if r.get("fmax_mhz"):
+        print(f"  {cps} cycles per step -> {r['modelled_steps_per_s']:.0f} steps/s modelled at Fmax")
     return 0
 
 
@@ -156,6 +212,11 @@ def _peak_frame(sys_, run) -> int:
 
 # ---------------------------------------------------------------- parser
 
+def _lane_args(s):
+    s.add_argument("--lanes", type=_positive_int, default=1, help="hardware: element (and pair) lanes P (default 1)")
+    s.add_argument("--node-lanes", type=_positive_int, default=1, help="hardware: node lanes Q (default 1)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="rheo", description="Rheological soft-object simulator: golden model, "
                                 "bit-true fixed point and FPGA pipeline (Kimura et al. 2002).")
@@ -171,10 +232,27 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--steps", type=_positive_int, help="number of steps (default: the scene's duration / dt)")
     s.add_argument("--every", type=_positive_int, help="record every K-th step (default: the scene's output_every)")
     s.add_argument("--preset", default="wide", choices=PRESETS,
-                   help="number-format preset of the fixed backend (default: wide)")
+                   help="number-format preset of the fixed and hardware backends (default: wide)")
     s.add_argument("--out", required=True, help="output .npz file")
     s.add_argument("--force", action="store_true", help="run even when dt exceeds the predicted stable limit")
+    _lane_args(s)
     s.set_defaults(func=cmd_simulate)
+
+    s = sub.add_parser("verilog", help="emit the scene's specialised core as Verilog with manifest.json")
+    s.add_argument("scene", help="built-in scene name or path to a scene .toml")
+    s.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    s.add_argument("--preset", default="wide", choices=PRESETS, help="number-format preset (default: wide)")
+    _lane_args(s)
+    s.set_defaults(func=cmd_verilog)
+
+    s = sub.add_parser("synth", help="synthesise the scene's core for an ECP5: resources, Fmax, steps/s")
+    s.add_argument("scene", help="built-in scene name or path to a scene .toml")
+    s.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    s.add_argument("--device", default="ecp5-85k", help="ecp5-85k (default), ecp5-45k, ecp5-25k, ecp5-12k")
+    s.add_argument("--clock-mhz", type=float, default=100.0, help="clock constraint (default 100 MHz)")
+    s.add_argument("--preset", default="wide", choices=PRESETS, help="number-format preset (default: wide)")
+    _lane_args(s)
+    s.set_defaults(func=cmd_synth)
 
     s = sub.add_parser("show", help="render a run to PNG frames or a GIF animation")
     s.add_argument("run", help="run .npz written by `rheo simulate`")
@@ -214,11 +292,14 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     from golden.mesh import MeshError
     from golden.model import SimulationDiverged
+    from sim.simulators import SimulatorMissing
+    from sim.synth import SynthesisError
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (UsageError, MeshError, SimulationDiverged, ValueError, FileNotFoundError, OSError) as exc:
+    except (UsageError, MeshError, SimulationDiverged, ValueError, FileNotFoundError, OSError,
+            SimulatorMissing, SynthesisError) as exc:
         print(f"rheo: error: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -1,0 +1,620 @@
+"""The accelerator core: memories, element / pair / node pipelines, control and the host interface.
+
+One time step runs in two phases:
+
+  ELEMENTS  every element lane streams its elements, one per clock (II = 1), through the element
+            pipeline (hw/datapath.py `element_kernel`, built by hw/pipeline.py); every pair lane streams
+            its topology pairs through the pair pipeline (`pair_kernel`) at the same time. Each lane
+            writes its new element state and adds its forces into its own force accumulator banks.
+  NODES     every node lane streams its nodes through the node pipeline (`node_kernel`: sum of the banks,
+            floor, friction, loads, mass, gravity, pins), writes u and x, and clears the banks.
+
+  cycles per step = max(ceil(E/P), ceil(pairs/P)) + drain_elements + ceil(N/Q) + drain_nodes
+
+Force accumulation without read-after-write hazards, by construction: every lane owns one accumulator
+bank per role (element: node i, node j; pair: the vertex and each facet vertex), a simple dual-port
+memory read and written back one cycle later. Its read port is transparent to its write port, so an
+element that reads a node word in the cycle in which the previous element writes it sees the new sum:
+any element order is correct, and no two lanes ever share a bank. The node pipeline adds the banks
+exactly (integers wide enough for the largest number of contributions any node receives), so the
+result equals the bit-true model's exact scatter, whatever the order.
+
+Node state (x, u per dimension) lives in memories of ceil(N/Q) words, one memory per node lane slot;
+element lanes read both end nodes through their own read ports.
+
+Host interface (`host`): word addresses, 32-bit data; writes take effect at once, reads return
+`r_data` with `r_valid` exactly 2 cycles after `r_en`. Writes to memories while busy are ignored.
+
+  0x000000  ID (read): 0x52484530 ("RHE0")
+  0x000001  RUN: write n > 0 to run n steps (busy at once); read: steps left
+  0x000002  STATUS (read): bit 0 busy, bit 1 any saturation since the last clear
+  0x000003  STEP: the step counter (read/write; loads act by step number)
+  0x000004  SATURATIONS (read): saturation count (saturates at 2^32 - 1); write: clear count and flags
+  0x000005  SATURATION FLAGS (read): sticky flag per quantity (bit order in the manifest)
+  0x000006  CYCLES (read): clock cycles spent running since reset
+  0x100000 + field * NODE_STRIDE + n      node n, field 0..D-1 = x_k, D..2D-1 = u_k (raw, sign-extended)
+  0x200000 + field * ELEM_STRIDE + slot  element state by lane slot (slot = lane * S + position):
+                                          field 0 = a, 1 = |T| of the previous step (nonlinear damper)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from amaranth.hdl import Cat, Const, Module, Mux, Shape, Signal, signed, unsigned
+from amaranth.lib import wiring
+from amaranth.lib.memory import Memory
+from amaranth.lib.wiring import In, Out
+
+from .datapath import Params, _node_flags, element_kernel, node_kernel, pair_kernel
+from .pipeline import PipeArith
+from .rtl_fixed import as_shape
+
+ID_WORD = 0x52484530
+REG_ID, REG_RUN, REG_STATUS, REG_STEP, REG_SAT, REG_SAT_FLAGS, REG_CYCLES = range(7)
+NODE_BASE, ELEM_BASE = 0x100000, 0x200000
+READ_LATENCY = 2
+ADDR_BITS = 24
+
+HostSignature = wiring.Signature({
+    "addr": Out(ADDR_BITS), "w_data": Out(32), "w_en": Out(1), "r_en": Out(1),
+    "r_data": In(32), "r_valid": In(1),
+})
+
+
+@dataclass
+class CoreConfig:
+    """Everything the core is built from: the scene's datapath parameters, formats, function units,
+    lane counts and the static mapping of elements, pairs and nodes onto lanes and memory words."""
+    params: Params
+    formats: object
+    units: dict
+    lanes: int = 1             # P: element lanes (and pair lanes)
+    node_lanes: int = 1        # Q: node lanes (nodes per memory word)
+    init: dict = field(default_factory=dict)     # initial raw state: X, U (lists), A, FP
+
+    def __post_init__(self):
+        for name, v in (("lanes", self.lanes), ("node_lanes", self.node_lanes)):
+            if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 64:
+                raise ValueError(f"{name} must be an integer in 1..64, got {v!r}")
+
+    @classmethod
+    def of(cls, bt, lanes=1, node_lanes=1) -> "CoreConfig":
+        st = bt.initial_state()
+        return cls(bt.params, bt.formats, bt.ar.units, lanes, node_lanes,
+                   {"X": st.X, "U": st.U, "A": st.A, "FP": st.FP})
+
+    # ---- static mapping
+    @property
+    def dim(self):
+        return self.params.dim
+
+    @property
+    def n_nodes(self):
+        return self.params.n_nodes
+
+    @property
+    def n_elements(self):
+        return len(self.params.i)
+
+    @property
+    def n_pairs(self):
+        return 0 if self.params.topology is None else len(self.params.topology["pairs"])
+
+    @property
+    def node_words(self):
+        return -(-self.n_nodes // self.node_lanes)
+
+    @property
+    def element_slots(self):
+        """Elements per lane (the longest lane): element e runs in lane e % P at position e // P."""
+        return -(-self.n_elements // self.lanes)
+
+    @property
+    def pair_slots(self):
+        return -(-self.n_pairs // self.lanes)
+
+    def lane_items(self, n_items, lane):
+        return np.arange(lane, n_items, self.lanes)
+
+    # ---- host addresses (no division in hardware: fields are bit ranges)
+    @property
+    def word_bits(self):
+        return max(1, (self.node_words - 1).bit_length())
+
+    @property
+    def slot_bits(self):
+        return max(1, (self.node_lanes - 1).bit_length())
+
+    @property
+    def pos_bits(self):
+        return max(1, (self.element_slots - 1).bit_length())
+
+    @property
+    def lane_bits(self):
+        return max(1, (self.lanes - 1).bit_length())
+
+    def node_addr(self, field, n):
+        """Host word address of node n's field (0..D-1: x_k, D..2D-1: u_k)."""
+        n = np.asarray(n)
+        return (NODE_BASE + (field << (self.word_bits + self.slot_bits)) + ((n % self.node_lanes) << self.word_bits)
+                + n // self.node_lanes)
+
+    def elem_addr(self, field, e):
+        """Host word address of element e's state field (0: a, 1: |T| of the previous step)."""
+        e = np.asarray(e)
+        return ELEM_BASE + (field << (self.pos_bits + self.lane_bits)) + ((e % self.lanes) << self.pos_bits) + e // self.lanes
+
+    def features(self):
+        return self.params.features()
+
+
+def _tree_sum(values):
+    """A balanced adder tree (shallow expressions; exact: Amaranth widens every sum)."""
+    values = list(values)
+    while len(values) > 1:
+        values = [values[i] + values[i + 1] if i + 1 < len(values) else values[i] for i in range(0, len(values), 2)]
+    return values[0]
+
+
+def _bits(n):
+    return max(1, int(n - 1).bit_length()) if n > 1 else 1
+
+
+class Core(wiring.Component):
+    """The specialised accelerator for one scene (see the module docstring for phases and registers).
+
+    After elaboration: `cycles_per_step`, `drain_elements`, `drain_nodes`, `sat_quantities`,
+    `const_saturations` and `units_present` describe what was built.
+    """
+
+    def __init__(self, cfg: CoreConfig):
+        if not isinstance(cfg, CoreConfig):
+            raise TypeError(f"Core needs a CoreConfig, got {type(cfg).__name__}")
+        self.cfg = cfg
+        super().__init__({"host": In(HostSignature)})
+        self._built = None
+
+    # the static figures need the pipelines' depths: build once, cache
+    def elaborate(self, platform):
+        m = self._build()
+        return m
+
+    def _build(self):
+        cfg, p, fmt = self.cfg, self.cfg.params, self.cfg.formats
+        D, P, Q = cfg.dim, cfg.lanes, cfg.node_lanes
+        W = cfg.node_words
+        m = Module()
+        host = self.host
+        self.memories = []
+
+        def add_mem(name, mem):
+            m.submodules[name] = mem
+            self.memories.append({"name": name, "depth": mem.depth, "width": Shape.cast(mem.shape).width})
+
+        busy = Signal()
+        phase = Signal(2)                 # 0 elements, 1 element drain, 2 nodes, 3 node drain
+        cnt = Signal(32)
+        steps_left = Signal(32)
+        step_no = Signal(32)
+        cycles = Signal(32)
+        self.const_saturations = {}
+
+        # ---------------------------------------------------------------- node state memories
+        xs, us = as_shape(fmt["x"]), as_shape(fmt["u"])
+        init = cfg.init
+        def node_init(arr, q):
+            a = np.zeros(W, np.int64)
+            vals = np.asarray(arr)[q::Q]
+            a[:len(vals)] = vals
+            return [int(v) for v in a]
+        Xm = [[Memory(shape=xs, depth=W, init=node_init(init["X"][k], q)) for q in range(Q)] for k in range(D)]
+        Um = [[Memory(shape=us, depth=W, init=node_init(init["U"][k], q)) for q in range(Q)] for k in range(D)]
+        for k in range(D):
+            for q in range(Q):
+                add_mem(f"x{k}_{q}", Xm[k][q])
+                add_mem(f"u{k}_{q}", Um[k][q])
+        node_fields = [Xm[k] for k in range(D)] + [Um[k] for k in range(D)]
+
+        def read_node(word, slot, stage_word_valid_at, name):
+            """Read ports on every node field for a node (word, slot); data one cycle later."""
+            outs = []
+            slot_d = Signal.like(slot, name=f"{name}_slot_d")
+            m.d.sync += slot_d.eq(slot)
+            for fi, mems in enumerate(node_fields):
+                datas = []
+                for q in range(Q):
+                    rp = mems[q].read_port(domain="sync")
+                    m.d.comb += rp.addr.eq(word)
+                    datas.append(rp.data)
+                if Q == 1:
+                    outs.append(datas[0])
+                else:
+                    sel = Signal(mems[0].shape, name=f"{name}_f{fi}")
+                    with m.Switch(slot_d):
+                        for q in range(Q):
+                            with m.Case(q):
+                                m.d.comb += sel.eq(datas[q])
+                    outs.append(sel)
+            return outs[:D], outs[D:]
+
+        # ---------------------------------------------------------------- accumulator banks
+        banks = []        # (lane, role name, [k][q] memories, width)
+
+        def make_bank(name, width):
+            mems = [[Memory(shape=signed(width), depth=W, init=[]) for q in range(Q)] for k in range(D)]
+            for k in range(D):
+                for q in range(Q):
+                    add_mem(f"acc_{name}_{k}_{q}", mems[k][q])
+            ports = [[None] * Q for _ in range(D)]
+            for k in range(D):
+                for q in range(Q):
+                    wp = mems[k][q].write_port()
+                    rp = mems[k][q].read_port(domain="sync", transparent_for=(wp,))
+                    ports[k][q] = (rp, wp)
+            banks.append((name, ports, width))
+            return ports
+
+        def acc_width(nodes_of_role):
+            cnt_max = int(np.bincount(nodes_of_role, minlength=1).max()) if len(nodes_of_role) else 1
+            return fmt["fe"].width + cnt_max.bit_length() + 1
+
+        # the element / pair pipelines' RMW requests: (ports, word, slot, [fe per k], enable, stage, arith)
+        rmw = []
+
+        # ---------------------------------------------------------------- element lanes
+        elem_phase_valid = Signal()
+        m.d.comb += elem_phase_valid.eq(busy & (phase == 0))
+        S = cfg.element_slots
+        drains = []
+        all_arith = []
+        self.elem_state_mems = []
+        for lane in range(P):
+            items = cfg.lane_items(cfg.n_elements, lane)
+            valid0 = Signal(name=f"el{lane}_valid0")
+            m.d.comb += valid0.eq(elem_phase_valid & (cnt < len(items)))
+            rom_fields = []
+            def src(q, raw, shape, items=items, rom_fields=rom_fields, lane=lane):
+                sig = Signal(shape, name=f"el{lane}_prm_{q}")
+                vals = np.zeros(S, np.int64)
+                vals[:len(items)] = np.asarray(raw)[items]
+                rom_fields.append((sig, vals))
+                return sig
+            ar = PipeArith(m, fmt, cfg.units, valid0, f"el{lane}", src, param_stage=1)
+            all_arith.append(ar)
+            iw, is_, jw, js = (Signal(_bits(W) + 1, name=f"el{lane}_{n}") for n in ("iw", "is", "jw", "js"))
+            ni, nj = p.i[items], p.j[items]
+            for sig, arr in ((iw, ni // Q), (is_, ni % Q), (jw, nj // Q), (js, nj % Q)):
+                vals = np.zeros(S, np.int64)
+                vals[:len(items)] = arr
+                rom_fields.append((sig, vals))
+            Xi, Ui = read_node(iw, is_, 1, f"el{lane}_ni")
+            Xj, Uj = read_node(jw, js, 1, f"el{lane}_nj")
+            # element state
+            a_shape, f_shape = as_shape(fmt["a"]), as_shape(fmt["force"])
+            has_a, has_fp = not p.fixed_a, p.damper is not None
+            a_vals = np.zeros(S, np.int64)
+            a_vals[:len(items)] = np.asarray(init["A"])[items]
+            A_mem = Memory(shape=a_shape, depth=S, init=[int(v) for v in a_vals])
+            FP_mem = Memory(shape=f_shape, depth=S, init=[]) if has_fp else None
+            add_mem(f"el{lane}_a", A_mem)
+            A_wp = A_mem.write_port() if has_a else None
+            A_rp = A_mem.read_port(domain="sync")
+            m.d.comb += A_rp.addr.eq(cnt)
+            if has_fp:
+                add_mem(f"el{lane}_fp", FP_mem)
+                FP_wp = FP_mem.write_port()
+                FP_rp = FP_mem.read_port(domain="sync")
+                m.d.comb += FP_rp.addr.eq(cnt)
+            with ar:
+                A = ar.input(A_rp.data, "a", 1)
+                FP = ar.input(FP_rp.data, "force", 1) if has_fp else ar.zeros("force", 1)
+                fe, newA, newFP = element_kernel(
+                    ar, p, [ar.input(v, "x", 2) for v in Xi], [ar.input(v, "x", 2) for v in Xj],
+                    [ar.input(v, "u", 2) for v in Ui], [ar.input(v, "u", 2) for v in Uj], A, FP)
+                fe_neg = [ar.neg(v) for v in fe]          # node j's word (saturating, as the model)
+                outs = fe + fe_neg + [v for v in (newA, newFP) if v is not None]
+                s_out = max(v.stage for v in outs)
+            slot_at = ar.delay(cnt[:_bits(S) + 1], 0, s_out)
+            en = ar.valid_at(s_out)
+            if has_a:
+                m.d.comb += [A_wp.addr.eq(slot_at), A_wp.data.eq(ar.at(newA, s_out)), A_wp.en.eq(en)]
+            if has_fp:
+                m.d.comb += [FP_wp.addr.eq(slot_at), FP_wp.data.eq(ar.at(newFP, s_out)), FP_wp.en.eq(en)]
+            self.elem_state_mems.append((A_mem, FP_mem, A_wp if has_a else None, FP_wp if has_fp else None))
+            # the ROM of this lane: node words/slots and per-element parameters
+            self._rom(m, add_mem, f"el{lane}_rom", rom_fields, S, cnt)
+            fe_out = [ar.at(v, s_out) for v in fe]
+            neg = [ar.at(v, s_out) for v in fe_neg]
+            rmw.append((make_bank(f"el{lane}_i", acc_width(ni)), ar.delay(iw, 1, s_out), ar.delay(is_, 1, s_out),
+                        fe_out, en, s_out, ar))
+            rmw.append((make_bank(f"el{lane}_j", acc_width(nj)), ar.delay(jw, 1, s_out), ar.delay(js, 1, s_out),
+                        neg, en, s_out, ar))
+            drains.append(s_out + 2)
+
+        # ---------------------------------------------------------------- pair lanes (topology)
+        if p.topology is not None:
+            pairs = p.topology["pairs"]
+            SP = cfg.pair_slots
+            for lane in range(P):
+                items = cfg.lane_items(cfg.n_pairs, lane)
+                valid0 = Signal(name=f"pr{lane}_valid0")
+                m.d.comb += valid0.eq(elem_phase_valid & (cnt < len(items)))
+                rom_fields = []
+                ar = PipeArith(m, fmt, cfg.units, valid0, f"pr{lane}", None, param_stage=1)
+                all_arith.append(ar)
+                X_roles, U_roles, words, slots = [], [], [], []
+                for r in range(D + 1):
+                    nodes = pairs[items, r]
+                    w_, s_ = Signal(_bits(W) + 1, name=f"pr{lane}_w{r}"), Signal(_bits(Q) + 1, name=f"pr{lane}_s{r}")
+                    for sig, arr in ((w_, nodes // Q), (s_, nodes % Q)):
+                        vals = np.zeros(SP, np.int64)
+                        vals[:len(items)] = arr
+                        rom_fields.append((sig, vals))
+                    Xr, Ur = read_node(w_, s_, 1, f"pr{lane}_n{r}")
+                    X_roles.append(Xr)
+                    U_roles.append(Ur)
+                    words.append(w_)
+                    slots.append(s_)
+                self._rom(m, add_mem, f"pr{lane}_rom", rom_fields, SP, cnt)
+                with ar:
+                    ins = [[ar.input(v, "x", 2) for v in X_roles[r]] for r in range(D + 1)]
+                    ins += [[ar.input(v, "u", 2) for v in U_roles[r]] for r in range(D + 1)]
+                    gate, contribs = pair_kernel(ar, p, *ins)
+                    s_out = max(v.stage for _, v, _ in contribs)
+                    cond = ar.delay(gate.cond.sig, gate.cond.stage, s_out)
+                en = ar.valid_at(s_out) & cond
+                for r in range(D + 1):
+                    per_k = [None] * D
+                    for k, v, role in contribs:
+                        if role == r:
+                            per_k[k] = ar.at(v, s_out)
+                    rmw.append((make_bank(f"pr{lane}_r{r}", acc_width(pairs[items, r])),
+                                ar.delay(words[r], 1, s_out), ar.delay(slots[r], 1, s_out), per_k, en, s_out, ar))
+                drains.append(s_out + 2)
+
+        # ---------------------------------------------------------------- RMW into the banks
+        node_phase_valid = Signal()
+        m.d.comb += node_phase_valid.eq(busy & (phase == 2))
+        clear_en = Signal()
+        clear_addr = Signal(_bits(W) + 1)
+        m.d.sync += [clear_en.eq(node_phase_valid & (cnt < W)), clear_addr.eq(cnt)]
+        for ports, word, slot, vals, en, s_out, ar in rmw:
+            word1 = ar.delay(word, s_out, s_out + 1)
+            slot1 = ar.delay(slot, s_out, s_out + 1)
+            en1 = ar.delay(en, s_out, s_out + 1)
+            for k in range(D):
+                v1 = ar.delay(vals[k], s_out, s_out + 1)
+                for q in range(Q):
+                    rp, wp = ports[k][q]
+                    # element phase: read at s_out, add and write at s_out + 1; node phase: read, clear
+                    m.d.comb += rp.addr.eq(Mux(phase[1], cnt, word))
+                    m.d.comb += [
+                        wp.addr.eq(Mux(phase[1], clear_addr, word1)),
+                        wp.data.eq(Mux(phase[1], 0, rp.data + v1)),
+                        wp.en.eq(Mux(phase[1], clear_en, en1 & (slot1 == q))),
+                    ]
+
+        # ---------------------------------------------------------------- node lanes
+        flags = _node_flags(p)
+        node_outs = []
+        n_drain = 0
+        last_fill = cfg.n_nodes - (W - 1) * Q
+        for q in range(Q):
+            valid0 = Signal(name=f"nd{q}_valid0")
+            exists = (cnt < W - 1) | Const(int(q < last_fill), 1) if W > 1 else Const(int(q < last_fill), 1)
+            m.d.comb += valid0.eq(node_phase_valid & (cnt < W) & exists)
+            rom_fields = []
+            def src(name, raw, shape, q=q, rom_fields=rom_fields):
+                sig = Signal(shape, name=f"nd{q}_prm_{name}")
+                vals = np.zeros(W, np.int64)
+                arr = np.asarray(raw)[q::Q]
+                vals[:len(arr)] = arr
+                rom_fields.append((sig, vals))
+                return sig
+            ar = PipeArith(m, fmt, cfg.units, valid0, f"nd{q}", src, param_stage=1)
+            all_arith.append(ar)
+            Xq, Uq = [], []
+            for k in range(D):
+                for mems, out in ((Xm, Xq), (Um, Uq)):
+                    rp = mems[k][q].read_port(domain="sync")
+                    m.d.comb += rp.addr.eq(cnt)
+                    out.append(rp.data)
+            # exact sum of the banks' slot q, registered: valid at stage 2
+            F_elem = []
+            for k in range(D):
+                total = _tree_sum([ports[k][q][0].data for _, ports, _ in banks])
+                r = Signal(signed(max(w for _, _, w in banks) + _bits(len(banks)) + 1), name=f"nd{q}_facc{k}")
+                m.d.sync += r.eq(total)
+                F_elem.append(r)
+            with ar:
+                X = [ar.input(v, "x", 1) for v in Xq]
+                U = [ar.input(v, "u", 1) for v in Uq]
+                Fe = [ar.input(v, "fe", 2) for v in F_elem]
+                newX, newU = node_kernel(ar, p, X, U, Fe, step_no, flags)
+                s_out = max(v.stage for v in newX + newU)
+            self._rom(m, add_mem, f"nd{q}_rom", rom_fields, W, cnt)
+            word_at = ar.delay(cnt[:_bits(W) + 1], 0, s_out)
+            node_outs.append((q, word_at, [ar.at(v, s_out) for v in newX], [ar.at(v, s_out) for v in newU],
+                              ar.valid_at(s_out)))
+            n_drain = max(n_drain, s_out + 1)
+
+        # ---------------------------------------------------------------- host access to node / element memories
+        h_addr = host.addr
+        h_node = (h_addr >= NODE_BASE) & (h_addr < ELEM_BASE)
+        h_elem = h_addr >= ELEM_BASE
+        node_off = h_addr - NODE_BASE
+        wbits, sbits = cfg.word_bits, cfg.slot_bits
+        h_field = node_off >> (wbits + sbits)
+        h_word, h_slot = node_off[:wbits], node_off[wbits:wbits + sbits]
+        host_w_node = host.w_en & h_node & ~busy
+        for fi, mems in enumerate(node_fields):
+            k, is_u = fi % D, fi >= D
+            for q in range(Q):
+                wp = mems[q].write_port()
+                hit = host_w_node & (h_field == fi) & (h_slot == q)
+                pipe = [o for o in node_outs if o[0] == q][0]
+                _, word_at, nx, nu, nvalid = pipe
+                m.d.comb += [
+                    wp.addr.eq(Mux(busy, word_at, h_word)),
+                    wp.data.eq(Mux(busy, (nu if is_u else nx)[k], host.w_data)),
+                    wp.en.eq(Mux(busy, nvalid, hit)),
+                ]
+        # host reads
+        r_en1, r_addr1 = Signal(), Signal(ADDR_BITS)
+        m.d.sync += [r_en1.eq(host.r_en), r_addr1.eq(h_addr)]
+        node_read = []
+        for fi, mems in enumerate(node_fields):
+            for q in range(Q):
+                rp = mems[q].read_port(domain="sync")
+                m.d.comb += rp.addr.eq(h_word)
+                node_read.append((fi, q, rp.data))
+        e_off = h_addr - ELEM_BASE
+        pbits, lbits = cfg.pos_bits, cfg.lane_bits
+        e_field = e_off >> (pbits + lbits)
+        e_pos, e_lane = e_off[:pbits], e_off[pbits:pbits + lbits]
+        elem_read = []
+        for lane, (A_mem, FP_mem, A_wp, FP_wp) in enumerate(self.elem_state_mems):
+            for fi, (mem, wp) in enumerate(((A_mem, A_wp), (FP_mem, FP_wp))):
+                if mem is None:
+                    continue
+                rp = mem.read_port(domain="sync")
+                m.d.comb += rp.addr.eq(e_pos)
+                elem_read.append((fi, lane, rp.data))
+                if wp is None:          # no a-state in the pipeline: the host still loads a
+                    wp = mem.write_port()
+                    m.d.comb += [wp.addr.eq(e_pos), wp.data.eq(host.w_data),
+                                 wp.en.eq(host.w_en & h_elem & ~busy & (e_field == fi) & (e_lane == lane))]
+        # (element state write ports: the pipeline drives them while busy, the host while idle)
+        self._host_elem_writes(m, busy, host, h_elem, e_field, e_lane, e_pos)
+
+        # ---------------------------------------------------------------- saturation accounting
+        events = []
+        for ar in all_arith:
+            events += ar.saturation_events()
+            for k, n in ar.const_sat.items():
+                self.const_saturations[k] = self.const_saturations.get(k, 0) + n
+        quantities = sorted({q for q, _ in events})
+        self.sat_quantities = quantities
+        sat_count = Signal(32)
+        sat_flags = Signal(max(1, len(quantities)))
+        if events:
+            per_cycle = Signal(16)
+            m.d.sync += per_cycle.eq(_tree_sum([c for _, c in events]))
+            hits = Cat(*[Cat(*[(c != 0) for qq, c in events if qq == q]).any() for q in quantities])
+            new_count = sat_count + per_cycle
+            with m.If(host.w_en & (h_addr == REG_SAT)):
+                m.d.sync += [sat_count.eq(0), sat_flags.eq(0)]
+            with m.Else():
+                m.d.sync += [sat_count.eq(Mux(new_count >> 32 != 0, 0xFFFFFFFF, new_count[:32])),
+                             sat_flags.eq(sat_flags | hits)]
+
+        # ---------------------------------------------------------------- control
+        drain_e = max(drains)
+        drain_n = n_drain + 1
+        C_E = max(cfg.element_slots, cfg.pair_slots)
+        self.drain_elements, self.drain_nodes = drain_e, drain_n
+        self.cycles_per_step = C_E + drain_e + W + drain_n
+        with m.If(busy):
+            m.d.sync += cycles.eq(cycles + 1)
+            with m.Switch(phase):
+                with m.Case(0):
+                    with m.If(cnt == C_E - 1):
+                        m.d.sync += [cnt.eq(0), phase.eq(1)]
+                    with m.Else():
+                        m.d.sync += cnt.eq(cnt + 1)
+                with m.Case(1):
+                    with m.If(cnt == drain_e - 1):
+                        m.d.sync += [cnt.eq(0), phase.eq(2)]
+                    with m.Else():
+                        m.d.sync += cnt.eq(cnt + 1)
+                with m.Case(2):
+                    with m.If(cnt == W - 1):
+                        m.d.sync += [cnt.eq(0), phase.eq(3)]
+                    with m.Else():
+                        m.d.sync += cnt.eq(cnt + 1)
+                with m.Case(3):
+                    with m.If(cnt == drain_n - 1):
+                        m.d.sync += [cnt.eq(0), phase.eq(0), step_no.eq(step_no + 1),
+                                     steps_left.eq(steps_left - 1)]
+                        with m.If(steps_left == 1):
+                            m.d.sync += busy.eq(0)
+                    with m.Else():
+                        m.d.sync += cnt.eq(cnt + 1)
+        with m.Elif(host.w_en):
+            with m.If(h_addr == REG_RUN):
+                with m.If(host.w_data != 0):
+                    m.d.sync += [busy.eq(1), steps_left.eq(host.w_data), phase.eq(0), cnt.eq(0)]
+            with m.If(h_addr == REG_STEP):
+                m.d.sync += step_no.eq(host.w_data)
+
+        # register reads: decode the address registered with r_en, answer one cycle later
+        r_data = Signal(32)
+        with m.Switch(r_addr1):
+            with m.Case(REG_ID):
+                m.d.comb += r_data.eq(ID_WORD)
+            with m.Case(REG_RUN):
+                m.d.comb += r_data.eq(steps_left)
+            with m.Case(REG_STATUS):
+                m.d.comb += r_data.eq(Cat(busy, sat_flags.any()))
+            with m.Case(REG_STEP):
+                m.d.comb += r_data.eq(step_no)
+            with m.Case(REG_SAT):
+                m.d.comb += r_data.eq(sat_count)
+            with m.Case(REG_SAT_FLAGS):
+                m.d.comb += r_data.eq(sat_flags)
+            with m.Case(REG_CYCLES):
+                m.d.comb += r_data.eq(cycles)
+            with m.Default():
+                r_off = r_addr1 - NODE_BASE
+                r_field, r_slot = r_off >> (wbits + sbits), r_off[wbits:wbits + sbits]
+                re_off = r_addr1 - ELEM_BASE
+                re_field, re_lane = re_off >> (pbits + lbits), re_off[pbits:pbits + lbits]
+                with m.If((r_addr1 >= NODE_BASE) & (r_addr1 < ELEM_BASE)):
+                    for fi, q, data in node_read:
+                        with m.If((r_field == fi) & (r_slot == q)):
+                            m.d.comb += r_data.eq(data.as_signed())
+                with m.Elif(r_addr1 >= ELEM_BASE):
+                    for fi, lane, data in elem_read:
+                        with m.If((re_field == fi) & (re_lane == lane)):
+                            m.d.comb += r_data.eq(data.as_signed())
+        m.d.sync += [host.r_data.eq(r_data), host.r_valid.eq(r_en1)]
+        self.units_present = self._units_present()
+        return m
+
+    def _host_elem_writes(self, m, busy, host, h_elem, e_field, e_lane, e_pos):
+        """Element state write ports: the pipeline while busy, the host while idle."""
+        for lane, (A_mem, FP_mem, A_wp, FP_wp) in enumerate(self.elem_state_mems):
+            for fi, wp in enumerate((A_wp, FP_wp)):
+                if wp is None:
+                    continue
+                # the pipeline's assignments were made first in comb; override them when idle
+                hit = host.w_en & h_elem & (e_field == fi) & (e_lane == lane)
+                with m.If(~busy):
+                    m.d.comb += [wp.addr.eq(e_pos), wp.data.eq(host.w_data), wp.en.eq(hit)]
+
+    @staticmethod
+    def _rom(m, add_mem, name, fields, depth, addr):
+        """One ROM holding every per-item field of a lane, read at stage 0, fields valid at stage 1."""
+        if not fields:
+            return
+        widths = [f[0].shape().width for f in fields]
+        words = []
+        for n in range(depth):
+            w, off = 0, 0
+            for (sig, vals), width in zip(fields, widths):
+                w |= (int(vals[n]) & ((1 << width) - 1)) << off
+                off += width
+            words.append(w)
+        rom = Memory(shape=unsigned(sum(widths)), depth=max(depth, 1), init=words)
+        add_mem(name, rom)
+        rp = rom.read_port(domain="sync")
+        m.d.comb += rp.addr.eq(addr)
+        off = 0
+        for (sig, _), width in zip(fields, widths):
+            m.d.comb += sig.eq(rp.data[off:off + width])
+            off += width
+
+    def _units_present(self):
+        f = self.cfg.features()
+        return f

@@ -1,0 +1,110 @@
+"""Scene -> specialised core -> Verilog and its manifest (`rheo verilog`).
+
+The scene decides what is elaborated (the specialisation table below); the manifest lists the units
+present and left out, every number format, the memories, lanes and the cycles-per-step formula.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .bittrue import BitTrue
+from .core import (ADDR_BITS, Core, CoreConfig, ELEM_BASE, ID_WORD, NODE_BASE, READ_LATENCY, REG_CYCLES,
+                   REG_ID, REG_RUN, REG_SAT, REG_SAT_FLAGS, REG_STATUS, REG_STEP)
+
+TOP = "rheo_core"
+
+# unit -> (scene feature that needs it, what it is); the one specialisation table
+SPECIALISATION = [
+    ("element_pipeline", lambda f: True, "element pipeline: d, l, e, ldot, adot, T, +/- T e"),
+    ("rsqrt_element_length", lambda f: True, "1/sqrt unit for 1/l"),
+    ("k1_multiplier", lambda f: f["k1_multiply"], "k1 s multiplier (absent when k1 = 0: plastic)"),
+    ("a_state", lambda f: f["a_state"], "a memory and update, adot datapath (absent: viscoelastic)"),
+    ("damper_tables", lambda f: f["damper_table"], "c2 and 1/(c1 + c2) tables of the nonlinear damper"),
+    ("constant_damper", lambda f: f["a_state"] and not f["damper_table"], "constant c2, c1 + c2, 1/(c1 + c2)"),
+    ("previous_tension_memory", lambda f: f["damper_table"], "|T| of the previous step (damper table input)"),
+    ("pair_pipeline", lambda f: f["topology"], "topology preservation pairs (vertex, opposite facet)"),
+    ("floor_contact", lambda f: f["floor"], "floor penalty contact in the node pipeline"),
+    ("friction", lambda f: f["friction"], "regularised Coulomb friction at the floor"),
+    ("rsqrt_friction", lambda f: f["friction"] and f["dim"] == 3, "1/sqrt unit for |tangential force| (3D)"),
+    ("gravity", lambda f: f["gravity"], "gravity added to every free node"),
+    ("loads", lambda f: f["loads"], "external loads: per-node membership flags and step windows"),
+    ("per_node_mass", lambda f: f["per_node_mass"], "per-node 1/m memory and multiplier (absent: uniform mass)"),
+]
+
+
+def build(bt: BitTrue, lanes: int = 1, node_lanes: int = 1):
+    """(Core, elaborated Verilog text, manifest dict) for a bit-true model's scene and formats."""
+    from amaranth.back import verilog
+    cfg = CoreConfig.of(bt, lanes, node_lanes)
+    core = Core(cfg)
+    text = verilog.convert(core, name=TOP, emit_src=False)
+    return core, text, manifest(bt, core)
+
+
+def manifest(bt: BitTrue, core: Core) -> dict:
+    cfg = core.cfg
+    feats = cfg.features()
+    present = [{"unit": u, "what": what} for u, need, what in SPECIALISATION if need(feats)]
+    absent = [{"unit": u, "what": what} for u, need, what in SPECIALISATION if not need(feats)]
+    E, N, Pn = cfg.n_elements, cfg.n_nodes, cfg.n_pairs
+    mems = core.memories
+    return {
+        "top": TOP,
+        "scene": bt.sys.name,
+        "preset": bt.formats.preset.name,
+        "dim": cfg.dim,
+        "nodes": N, "elements": E, "pairs": Pn,
+        "lanes": {"element_lanes_P": cfg.lanes, "pair_lanes": cfg.lanes if Pn else 0,
+                  "node_lanes_Q": cfg.node_lanes},
+        "features": {k: (bool(v) if not isinstance(v, int) or isinstance(v, bool) else v) for k, v in feats.items()},
+        "units_present": present,
+        "units_left_out": absent,
+        "function_units": {name: u.to_dict() for name, u in cfg.units.items()},
+        "formats": bt.formats.to_dict(),
+        "hardware_units": bt.units.to_dict(),
+        "memories": mems,
+        "memory_bits": int(sum(m["depth"] * m["width"] for m in mems)),
+        "cycles_per_step": {
+            "formula": "max(ceil(E/P), ceil(pairs/P)) + drain_elements + ceil(N/Q) + drain_nodes",
+            "E": E, "pairs": Pn, "N": N, "P": cfg.lanes, "Q": cfg.node_lanes,
+            "drain_elements": core.drain_elements, "drain_nodes": core.drain_nodes,
+            "value": core.cycles_per_step,
+        },
+        "saturation_flags": core.sat_quantities,
+        "constant_saturations": core.const_saturations,
+        "host_interface": {
+            "addr_bits": ADDR_BITS, "data_bits": 32, "read_latency_cycles": READ_LATENCY,
+            "registers": {"ID": REG_ID, "RUN": REG_RUN, "STATUS": REG_STATUS, "STEP": REG_STEP,
+                          "SATURATIONS": REG_SAT, "SATURATION_FLAGS": REG_SAT_FLAGS, "CYCLES": REG_CYCLES},
+            "id_word": ID_WORD, "node_base": NODE_BASE, "element_base": ELEM_BASE,
+            "node_address": "node_base + (field << (word_bits + slot_bits)) + ((n % Q) << word_bits) + n // Q",
+            "element_address": "element_base + (field << (pos_bits + lane_bits)) + ((e % P) << pos_bits) + e // P",
+            "word_bits": cfg.word_bits, "slot_bits": cfg.slot_bits, "pos_bits": cfg.pos_bits,
+            "lane_bits": cfg.lane_bits,
+        },
+    }
+
+
+def write(bt: BitTrue, out_dir, lanes: int = 1, node_lanes: int = 1) -> dict:
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    core, text, man = build(bt, lanes, node_lanes)
+    (out / f"{TOP}.v").write_text(text)
+    man["verilog"] = f"{TOP}.v"
+    man["verilog_modules"] = sorted(set(line.split()[1].split("(")[0] for line in text.splitlines()
+                                        if line.startswith("module ")))
+    (out / "manifest.json").write_text(json.dumps(man, indent=2, default=_json_default))
+    return man
+
+
+def _json_default(o):
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

@@ -1,0 +1,325 @@
+"""Turns a datapath kernel (hw/datapath.py) into a fully pipelined Amaranth datapath, one item per clock.
+
+`PipeArith` implements the arithmetic interface of hw/arith.py, but each operation emits hardware: the
+kernel code that the bit-true model runs on NumPy arrays is run once more here on Amaranth values, so
+the pipeline performs exactly the bit-true model's operations, in its formats, with its rounding and
+saturation (hw/rtl_fixed.py). There is one description of the physics, and the two cannot drift apart.
+
+Schedule (as soon as possible, no stalls; II = 1):
+- every value carries the pipeline stage at which it is valid; an operation waits for its latest
+  operand, earlier operands are delayed by shift registers (shared between users);
+- multiply: 2 stages (exact product register, then round/saturate register); add, subtract, sum of
+  terms, negate, convert, select: 1 stage; comparisons and boolean logic: 0 stages (combinational, folded
+  into the select that uses them); constants and per-phase values (step counter): no stage at all;
+- function units (hw/rtl_funcunits.py) stream their operand in and their result out after their latency.
+A valid bit travels with every item. Each saturating operation yields a flag at its stage; it counts
+when the item is valid and, inside a gate (a condition such as "the node is below the floor"), when the
+gate is open: exactly the items the bit-true model evaluates after `np.flatnonzero`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from amaranth.hdl import Const, Module, Mux, Signal, Value
+
+from .fixed import Saturations, Shape
+from .rtl_fixed import FixedValue, as_shape
+
+MUL_LATENCY = 2
+OP_LATENCY = 1
+
+
+@dataclass
+class PV:
+    """A pipelined fixed-point value: Amaranth value `sig` (raw, in the format of quantity q), valid at
+    `stage` (None: a constant or a value that holds still during a phase), inside `gate` (or None)."""
+    sig: Value
+    q: str
+    stage: int | None
+    gate: "PBool | None" = None
+
+
+@dataclass
+class PBool:
+    sig: Value
+    stage: int | None
+    gate: "PBool | None" = None
+
+    def _op(self, other, fn):
+        ar = _CURRENT[-1]
+        return ar._bool(fn, self, other)
+
+    def __and__(self, other):
+        return self._op(other, lambda a, b: a & b)
+
+    def __rand__(self, other):
+        return self._op(other, lambda a, b: a & b)
+
+    def __or__(self, other):
+        return self._op(other, lambda a, b: a | b)
+
+    def __invert__(self):
+        ar = _CURRENT[-1]
+        return ar._bool(lambda a: ~a, self)
+
+
+_CURRENT: list = []
+
+
+class RtlGate:
+    """The hardware form of hw.arith.Gate: the condition travels with the values instead of subsetting."""
+    empty = False
+    size = 1
+
+    def __init__(self, ar: "PipeArith", cond: PBool):
+        self.ar, self.cond = ar, cond
+
+    def take(self, v: PV) -> PV:
+        return PV(v.sig, v.q, v.stage, self.cond)
+
+    def gate(self, cond: PBool) -> "RtlGate":
+        return RtlGate(self.ar, self.ar._bool(lambda a, b: a & b, self.cond, cond))
+
+    def expand(self, v: PV) -> PV:
+        zero = self.ar.zeros(v.q, 1)
+        out = self.ar.select(self.cond, PV(v.sig, v.q, v.stage, None), zero)
+        return PV(out.sig, out.q, out.stage, None)
+
+
+@dataclass
+class SatSource:
+    quantity: str
+    flag: Value       # 1 bit, or a small count
+    stage: int
+    gate: PBool | None
+
+
+class PipeArith:
+    """Builds one pipeline lane in module `m`.
+
+    `fmt`: quantity -> Shape (hw/formats.py FormatSet); `units`: the bit-true function unit models by
+    name ("inv_l", ..., "damper"); `valid`: the stage-0 valid bit; `param_source(q, array)` returns the
+    Amaranth value (valid at stage `param_stage`) of a per-item parameter, or of a per-item flag.
+    """
+
+    def __init__(self, m: Module, fmt, units: dict, valid: Value, name: str, param_source=None,
+                 param_stage: int = 1):
+        self.m, self.fmt, self.units, self.name = m, fmt, units, name
+        self.param_source, self.param_stage = param_source, param_stage
+        self._valid = {0: valid}
+        self._delays = {}
+        self._n = 0
+        self.sat_sources: list[SatSource] = []
+        self.const_sat = Saturations()
+        self.depth = 0
+        self.n_registers_bits = 0
+
+    def __enter__(self):
+        _CURRENT.append(self)
+        return self
+
+    def __exit__(self, *exc):
+        _CURRENT.pop()
+
+    # ---- plumbing
+    def shape(self, q) -> Shape:
+        return self.fmt[q]
+
+    def _name(self, what):
+        self._n += 1
+        return f"{self.name}_{what}_{self._n}"
+
+    def _reg(self, expr, shape, what):
+        r = Signal(shape, name=self._name(what))
+        self.m.d.sync += r.eq(expr)
+        self.n_registers_bits += r.shape().width
+        return r
+
+    def valid_at(self, stage: int) -> Value:
+        if stage not in self._valid:
+            prev = self.valid_at(stage - 1)
+            r = Signal(name=f"{self.name}_valid_{stage}")
+            self.m.d.sync += r.eq(prev)
+            self._valid[stage] = r
+        self.depth = max(self.depth, stage)
+        return self._valid[stage]
+
+    def delay(self, sig: Value, src: int | None, dst: int) -> Value:
+        """sig (valid at stage src) as seen at stage dst >= src."""
+        if src is None or src == dst:
+            return sig
+        if dst < src:
+            raise AssertionError(f"value of stage {src} wanted at earlier stage {dst}")
+        key = (id(sig), dst)
+        if key not in self._delays:
+            prev = self.delay(sig, src, dst - 1)
+            self._delays[key] = (self._reg(prev, sig.shape(), "dly"), sig)   # keep sig alive for id()
+        self.depth = max(self.depth, dst)
+        return self._delays[key][0]
+
+    @staticmethod
+    def _stage(*vals):
+        st = [v.stage for v in vals if v is not None and v.stage is not None]
+        return max(st) if st else None
+
+    @staticmethod
+    def _gate(*vals):
+        g = [v.gate for v in vals if v is not None and v.gate is not None]
+        return g[0] if g else None          # kernels only combine values of one gate (or nested ones)
+
+    def input(self, sig: Value, q: str, stage: int) -> PV:
+        return PV(sig, q, stage)
+
+    def at(self, v, stage):
+        return self.delay(v.sig, v.stage, stage)
+
+    def fx(self, v: PV, stage) -> FixedValue:
+        return FixedValue.of(self.shape(v.q), self.at(v, stage))
+
+    def _result(self, fv_and_flag, q, stage, gate, what):
+        """Register a rounded/saturated result and record its saturation flag (valid at stage + 1)."""
+        val, flag = fv_and_flag
+        r = self._reg(val.raw, as_shape(self.shape(q)), what)
+        if not (isinstance(flag, Const) or (isinstance(flag, bool) and not flag)):
+            f = self._reg(flag, 1, what + "_sat")
+            self.sat_sources.append(SatSource(q, f, stage + 1, gate))
+        self.valid_at(stage + 1)
+        return PV(r, q, stage + 1, gate)
+
+    def _s(self, *vals):
+        s = self._stage(*vals)
+        return 0 if s is None else s
+
+    # ---- the arithmetic interface (hw/arith.py)
+    def const(self, q, value) -> PV:
+        if isinstance(value, np.ndarray) and value.ndim > 0:
+            raise ValueError(f"constant '{q}' is an array: per-item values come through param()")
+        sat = Saturations()
+        raw = int(self.shape(q).from_float(float(value), sat, q))
+        for k, n in sat.items():
+            self.const_sat[k] += n
+        return PV(Const(raw, as_shape(self.shape(q))), q, None)
+
+    def param(self, q, value) -> PV:
+        arr = np.asarray(value)
+        if arr.ndim == 0 or np.all(arr == arr.flat[0]):
+            return self.const(q, float(arr.flat[0]))
+        if self.param_source is None:
+            raise ValueError(f"per-item parameter '{q}' but this lane has no parameter memory")
+        sat = Saturations()
+        raw = self.shape(q).from_float(arr, sat, q)
+        for k, n in sat.items():
+            self.const_sat[k] += n
+        sig = self.param_source(q, raw, as_shape(self.shape(q)))
+        return PV(sig, q, self.param_stage)
+
+    def flag(self, name, values) -> PBool:
+        arr = np.asarray(values, bool)
+        if np.all(arr == arr.flat[0]):
+            return PBool(Const(int(arr.flat[0]), 1), None)
+        return PBool(self.param_source(name, arr.astype(np.int64), 1), self.param_stage)
+
+    def window(self, step_no, first, end) -> PBool:
+        """first <= step < end for the phase's step counter `step_no` (an Amaranth value)."""
+        return PBool((step_no >= first) & (step_no < min(end, (1 << 32) - 1)), None)
+
+    def zeros(self, q, n) -> PV:
+        return PV(Const(0, as_shape(self.shape(q))), q, None)
+
+    def mul(self, a, b, q) -> PV:
+        s = self._s(a, b)
+        prod = self.fx(a, s) * self.fx(b, s)
+        p = self._reg(prod.raw, prod.raw.shape(), "prod")
+        return self._result(FixedValue(p, prod.f).round(self.shape(q)), q, s + 1, self._gate(a, b), "mul")
+
+    def add(self, a, b, q) -> PV:
+        s = self._s(a, b)
+        return self._result((self.fx(a, s) + self.fx(b, s)).round(self.shape(q)), q, s, self._gate(a, b), "add")
+
+    def sub(self, a, b, q) -> PV:
+        s = self._s(a, b)
+        return self._result((self.fx(a, s) - self.fx(b, s)).round(self.shape(q)), q, s, self._gate(a, b), "sub")
+
+    def sum(self, terms, q) -> PV:
+        s = self._s(*terms)
+        acc = None
+        for t in terms:
+            acc = self.fx(t, s) if acc is None else acc + self.fx(t, s)
+        return self._result(acc.round(self.shape(q)), q, s, self._gate(*terms), "sum")
+
+    def neg(self, a) -> PV:
+        s = self._s(a)
+        return self._result((-self.fx(a, s)).round(self.shape(a.q)), a.q, s, a.gate, "neg")
+
+    def convert(self, a, q) -> PV:
+        s = self._s(a)
+        return self._result(self.fx(a, s).round(self.shape(q)), q, s, a.gate, "cvt")
+
+    def le(self, a, b) -> PBool:
+        s = self._stage(a, b)
+        ss = 0 if s is None else s
+        return PBool(self.fx(a, ss) <= self.fx(b, ss), s, self._gate(a, b))
+
+    def lt(self, a, b) -> PBool:
+        s = self._stage(a, b)
+        ss = 0 if s is None else s
+        return PBool(self.fx(a, ss) < self.fx(b, ss), s, self._gate(a, b))
+
+    def _bool(self, fn, *args) -> PBool:
+        args = [a if isinstance(a, PBool) else PBool(Const(int(bool(a)), 1), None) for a in args]
+        s = self._stage(*args)
+        ss = 0 if s is None else s
+        return PBool(fn(*[self.delay(a.sig, a.stage, ss) for a in args]), s, self._gate(*args))
+
+    def select(self, cond, a, b) -> PV:
+        """cond ? a : b in a's quantity (b converted first when its quantity differs, as hw/arith.py)."""
+        if b.q != a.q:
+            b = self.convert(b, a.q)
+        s = self._s(cond, a, b)
+        expr = Mux(self.delay(cond.sig, cond.stage, s), self.at(a, s), self.at(b, s))
+        r = self._reg(expr, as_shape(self.shape(a.q)), "sel")
+        self.valid_at(s + 1)
+        return PV(r, a.q, s + 1, self._gate(a, b, cond))
+
+    def gate(self, cond: PBool) -> RtlGate:
+        return RtlGate(self, cond)
+
+    def rsqrt(self, a, q) -> PV:
+        from .rtl_funcunits import RsqrtUnit
+        s = self._s(a)
+        unit = RsqrtUnit(self.units[q])
+        self.m.submodules[self._name("rsqrt_" + q)] = unit
+        self.m.d.comb += [unit.i.payload.eq(self.at(a, s)), unit.i.valid.eq(self.valid_at(s))]
+        out = s + unit.latency
+        self.valid_at(out)
+        self.sat_sources.append(SatSource(q, unit.o.payload.saturated, out, a.gate))
+        return PV(unit.o.payload.value, q, out, a.gate)
+
+    def damper(self, f, table):
+        from .rtl_funcunits import DamperUnit
+        s = self._s(f)
+        unit = DamperUnit(self.units["damper"])
+        self.m.submodules[self._name("damper")] = unit
+        self.m.d.comb += [unit.i.payload.eq(self.at(f, s)), unit.i.valid.eq(self.valid_at(s))]
+        out = s + unit.latency
+        self.valid_at(out)
+        self.sat_sources.append(SatSource("damper", unit.o.payload.saturations, out, f.gate))
+        o = unit.o.payload
+        return PV(o.c2, "c2", out, f.gate), PV(o.c12, "c12", out, f.gate), PV(o.inv, "ic12", out, f.gate)
+
+    # ---- saturation accounting
+    def saturation_events(self) -> list[tuple[str, Value]]:
+        """(quantity, count this cycle) of every saturation source, gated by valid and its gate."""
+        out = []
+        for src in self.sat_sources:
+            st, flag = src.stage, src.flag
+            if src.gate is not None and src.gate.stage is not None and src.gate.stage > st:
+                st = src.gate.stage            # the gate is known later: count the flag then
+                flag = self.delay(flag, src.stage, st)
+            en = self.valid_at(st)
+            if src.gate is not None:
+                en = en & self.delay(src.gate.sig, src.gate.stage, st)
+            w = flag.shape().width
+            out.append((src.quantity, Mux(en, flag, Const(0, w))))
+        return out

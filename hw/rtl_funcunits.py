@@ -1,0 +1,376 @@
+"""Gateware for the bit-true function units of hw/funcunits.py: reciprocal square root and damper table.
+
+Both units are Amaranth components built from an already-constructed NumPy model object, which is
+their specification: every constant, ROM word, shift and rounding comes from the model, and for every
+input the gateware's outputs (and saturation flags) equal what the model computes, bit for bit.
+
+Both units are fully pipelined: they accept one input per clock cycle (initiation interval 1), never
+stall (both streams are `always_ready`), and deliver the result of an input accepted in cycle c in cycle
+c + `latency`; `o.valid` is `i.valid` delayed by `latency` cycles. Every multiplier is followed by a
+product register, and every rounding (a product plus 2^(s-1), then an arithmetic right shift by s) by
+another register, so that a synthesis tool can map the products onto DSP blocks with their pipeline
+registers. ROMs are `amaranth.lib.memory.Memory` instances with synchronous read ports (block RAM).
+"""
+from __future__ import annotations
+
+from amaranth.hdl import Cat, Const, Module, Mux, Signal, signed, unsigned
+from amaranth.lib import data, stream, wiring
+from amaranth.lib.memory import Memory
+from amaranth.lib.wiring import In, Out
+
+from .fixed import Shape
+from .funcunits import DamperTable, Rsqrt
+
+__all__ = ["RsqrtUnit", "DamperUnit"]
+
+
+def _raw_shape(shape: Shape):
+    """The Amaranth shape of a fixed-point format's raw integer."""
+    return signed(shape.width) if shape.signed else unsigned(shape.width)
+
+
+def _bits(value: int) -> int:
+    """Bits of an unsigned register that holds 0..value."""
+    return max(int(value).bit_length(), 1)
+
+
+def _signed_bits(lo: int, hi: int) -> int:
+    """Bits of a signed register that holds lo..hi."""
+    return max(max(int(lo), ~int(hi), 0).bit_length(), max(int(hi), ~int(lo), 0).bit_length()) + 1
+
+
+class _Pipe:
+    """Helpers to write pipeline registers (reset-less: a register's contents only matter when the
+    valid bit that travels alongside it is set)."""
+
+    def __init__(self, m: Module):
+        self.m = m
+
+    def reg(self, value, shape=None, name=None):
+        """A register of `shape` (default: the value's shape) loaded with `value` every cycle."""
+        sig = Signal(shape if shape is not None else value.shape(), name=name, reset_less=True)
+        self.m.d.sync += sig.eq(value)
+        return sig
+
+    def delay(self, value, cycles: int, name=None):
+        for j in range(cycles):
+            value = self.reg(value, name=None if name is None else f"{name}_d{j}")
+        return value
+
+
+class RsqrtUnit(wiring.Component):
+    """Reciprocal square root 1/sqrt(v), bit-true to a `hw.funcunits.Rsqrt` model (the specification).
+
+    Parameters
+    ----------
+    model : :class:`hw.funcunits.Rsqrt`
+        The NumPy model; its formats, ROM contents (`seed_table`), mantissa width `M`, iterate width `Y`,
+        `seed_bits` and `newton_steps` define the unit.
+
+    Attributes
+    ----------
+    i : ``In(stream.Signature(raw input shape, always_ready=True))``
+        Raw input x of `model.in_shape` (signed or unsigned like the format).
+    o : ``Out(stream.Signature(StructLayout({"value": raw output, "saturated": 1}), always_ready=True))``
+        `value` is the model's output for x; `saturated` is 1 exactly when the model counts one
+        saturation for this element (x <= 0, or a result above the output format's maximum).
+    latency : int
+        ``6 + 6 * model.newton_steps`` cycles from an accepted input to its output: 3 cycles of
+        normalisation, 1 of seed ROM, 6 per Newton step, 2 of denormalisation.
+
+    Algorithm (the model's steps 1-5; N = newton_steps; each cycle below ends in a register, and an
+    input accepted in cycle 0 is in the register of cycle j after j clock edges):
+
+    - cycle 1: x > 0 flag; bit length n of x (priority encoder; x <= 0 is treated as x = 1);
+    - cycle 2: xn = x << (Wn - n) (the leading one at bit Wn - 1, Wn = bit length of the largest input);
+      a table indexed by n gives d = (n - fi) mod 2 (so k = n + d), and the output shift
+      s = Y + (k - fi) / 2 - fo as a right shift rs = clamp(s, 0, Y + 3) and a left shift
+      ls = clamp(-s, 0, out.width) (every y >= 1 shifted left by out.width overflows, as in the model);
+    - cycle 3: m = x 2^(M - k) = xn 2^(M - Wn - d): an exact left shift, or a rounding right shift
+      (xn + 2^(r-1)) >> r, r = Wn + d - M, clamped to 2^M - 1 (the model's shift_round of x: xn's
+      low Wn - n bits are zero);
+    - cycle 4: seed ROM (3 * 2^(seed_bits-2) words of Y + 2 bits, `seed_table`, synchronous read) at
+      address (m >> (M - seed_bits)) - 2^(seed_bits-2): y = y0;
+    - N Newton steps of 6 cycles each: product y*y; y2 = (y*y + 2^(Y-1)) >> Y; product m*y2;
+      t = 3 2^Y - ((m*y2 + 2^(M-1)) >> M), formed in one subtraction as
+      (3 2^(Y+M) + 2^(M-1) - 1 - m*y2) >> M (an identity of floors); product y*t;
+      y = (y*t + 2^Y) >> (Y + 1);
+    - cycle 5 + 6N: the right-shift candidate (2y) >> rs, the left-shift candidate y << ls and whether
+      it exceeds max_raw;
+    - cycle 6 + 6N: ((2y >> rs) + 1) >> 1 (= (y + 2^(rs-1)) >> rs for rs >= 1, y for rs = 0); select the
+      left- or right-shift result; saturate into out_shape: x <= 0 or a result above max_raw gives
+      max_raw with `saturated` = 1.
+
+    Throughput: one input per cycle, no stalls. Widths: y is UQ(2, Y), y2 and h are UQ(3, Y), t is
+    UQ(2, Y) as in the model (they hold because the seed's relative error is below 1/8, checked at
+    construction). Multipliers: (Y+2) x (Y+2), M x (Y+3), (Y+2) x (Y+2) bits per Newton step (36 x 36,
+    34 x 37, 36 x 36 for a 32-bit output with 2 guard bits).
+    """
+
+    def __init__(self, model: Rsqrt):
+        if not isinstance(model, Rsqrt):
+            raise TypeError(f"RsqrtUnit needs a hw.funcunits.Rsqrt model, got {type(model).__name__} "
+                            f"({model!r})")
+        self.model = model
+        if model.seed_relative_error() >= 0.125:
+            raise ValueError(f"RsqrtUnit: seed error {model.seed_relative_error():g} too large for the "
+                             f"fixed internal formats")
+        self.latency = 6 + 6 * model.newton_steps
+        out = model.out_shape
+        super().__init__({
+            "i": In(stream.Signature(_raw_shape(model.in_shape), always_ready=True)),
+            "o": Out(stream.Signature(data.StructLayout({"value": _raw_shape(out), "saturated": 1}),
+                                      always_ready=True)),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        p = _Pipe(m)
+        md = self.model
+        ins, out = md.in_shape, md.out_shape
+        M, Y, sb, fi, fo = md.M, md.Y, md.seed_bits, ins.f, out.f
+        Wn = _bits(ins.max_raw)          # bit length of the largest positive input
+        L_CAP = out.width                # a left shift by >= out.width overflows for every y >= 1
+
+        # valid: the input's valid bit delayed by the latency
+        valid = self.i.valid
+        for j in range(self.latency):
+            v = Signal(name=f"valid_{j + 1}")
+            m.d.sync += v.eq(valid)
+            valid = v
+        m.d.comb += self.o.valid.eq(valid)
+
+        # ---- cycle 1: sign test and bit length
+        x = self.i.payload
+        positive = (x > 0)
+        xs = Signal(Wn)
+        m.d.comb += xs.eq(Mux(positive, x[:Wn], 1))
+        n = Signal(range(Wn + 1))
+        for b in range(Wn):              # the last matching statement wins: highest set bit
+            with m.If(xs[b]):
+                m.d.comb += n.eq(b + 1)
+        pos1, xs1, n1 = p.reg(positive, name="pos1"), p.reg(xs, name="xs1"), p.reg(n, name="n1")
+
+        # ---- cycle 2: left-normalise; per-n constants (d, output shifts)
+        lsh = Signal(range(Wn))
+        d = Signal()
+        rs = Signal(range(Y + 4))
+        ls = Signal(range(L_CAP + 1))
+        with m.Switch(n1):
+            for nv in range(1, Wn + 1):
+                dv = (nv - fi) & 1
+                e = (nv + dv - fi) >> 1
+                s = Y + e - fo
+                with m.Case(nv):
+                    m.d.comb += [lsh.eq(Wn - nv), d.eq(dv), rs.eq(min(max(s, 0), Y + 3)),
+                                 ls.eq(min(max(-s, 0), L_CAP))]
+            with m.Default():           # n = 0: x <= 0, whose output is the saturated maximum anyway
+                m.d.comb += [lsh.eq(Wn - 1), d.eq(0), rs.eq(0), ls.eq(0)]
+        xn2 = p.reg((xs1 << lsh)[:Wn], unsigned(Wn), name="xn2")
+        d2, rs2, ls2, pos2 = p.reg(d, name="d2"), p.reg(rs, name="rs2"), p.reg(ls, name="ls2"), p.reg(pos1)
+
+        # ---- cycle 3: mantissa m in UQ(0, M)
+        def mantissa(dv):
+            r = Wn + dv - M
+            if r <= 0:
+                return xn2.shift_left(-r)                        # exact
+            v = (xn2 + (1 << (r - 1))).shift_right(r)            # shift_round
+            return Mux(v > (1 << M) - 1, (1 << M) - 1, v)
+        m3 = p.reg(Mux(d2, mantissa(1), mantissa(0)), unsigned(M), name="m3")
+        rs3, ls3, pos3 = p.reg(rs2), p.reg(ls2), p.reg(pos2)
+
+        # ---- cycle 4: seed ROM
+        rom = Memory(shape=unsigned(Y + 2), depth=len(md.seed_table),
+                     init=[int(v) for v in md.seed_table])
+        m.submodules.seed_rom = rom
+        rp = rom.read_port(domain="sync")
+        m.d.comb += rp.addr.eq(m3[M - sb:] - md.idx_lo)
+        y = rp.data
+        mm, rs_, ls_, pos_ = p.reg(m3, name="m4"), p.reg(rs3), p.reg(ls3), p.reg(pos3)
+
+        # ---- Newton steps, 6 cycles each
+        T_CONST = (3 << (Y + M)) + (1 << (M - 1)) - 1
+        for step in range(md.newton_steps):
+            side = [mm, rs_, ls_, pos_]
+            pyy = p.reg(y * y, unsigned(2 * Y + 4), name=f"n{step}_yy")
+            ya = p.reg(y)
+            y2 = p.reg((pyy + (1 << (Y - 1))).shift_right(Y), unsigned(Y + 3), name=f"n{step}_y2")
+            yb = p.reg(ya)
+            side = [p.delay(s_, 2) for s_ in side]
+            pmh = p.reg(side[0] * y2, unsigned(M + Y + 3), name=f"n{step}_my2")
+            yc = p.reg(yb)
+            # t = 3 2^Y - floor((p + 2^(M-1)) / 2^M) = floor((3 2^(Y+M) + 2^(M-1) - 1 - p) / 2^M)
+            t = p.reg((Const(T_CONST, unsigned(_bits(T_CONST))) - pmh).shift_right(M), unsigned(Y + 2),
+                      name=f"n{step}_t")
+            yd = p.reg(yc)
+            side = [p.delay(s_, 2) for s_ in side]
+            pyt = p.reg(yd * t, unsigned(2 * Y + 4), name=f"n{step}_yt")
+            y = p.reg((pyt + (1 << Y)).shift_right(Y + 1), unsigned(Y + 2), name=f"n{step}_y")
+            mm, rs_, ls_, pos_ = [p.delay(s_, 2) for s_ in side]
+
+        # ---- denormalise and saturate (2 cycles)
+        rr = p.reg((y.shift_left(1) >> rs_), unsigned(Y + 3), name="dn_r")
+        wide = y << ls_
+        lv = p.reg(wide[:out.width], unsigned(out.width), name="dn_l")
+        lovf = p.reg(wide > out.max_raw, name="dn_lovf")
+        useleft = p.reg(ls_ != 0, name="dn_useleft")
+        posf = p.reg(pos_, name="dn_pos")
+        res_r = (rr + 1).shift_right(1)
+        ovf = Mux(useleft, lovf, res_r > out.max_raw)
+        res = Mux(useleft, lv, res_r)
+        sat = ~posf | ovf
+        value = p.reg(Mux(sat, out.max_raw, res), _raw_shape(out), name="out_value")
+        satr = p.reg(sat, name="out_sat")
+        m.d.comb += [self.o.payload.value.eq(value), self.o.payload.saturated.eq(satr)]
+        return m
+
+
+class DamperUnit(wiring.Component):
+    """Damper tables c2(f), c1 + c2(f), 1/(c1 + c2(f)), bit-true to a `hw.funcunits.DamperTable` model.
+
+    Parameters
+    ----------
+    model : :class:`hw.funcunits.DamperTable`
+        The NumPy model (the specification); thresholds `F1`, `F2`, scale `K_raw`, offset `OFF`,
+        `pos_shift`, `S`, `P`, the tables `tab_c2`, `tab_inv` with their clip flags and `c1_raw`.
+
+    Attributes
+    ----------
+    i : ``In(stream.Signature(raw f_shape, always_ready=True))``
+        Raw force f.
+    o : ``Out(stream.Signature(StructLayout({"c2", "c12", "inv", "saturations": unsigned(2)}),
+        always_ready=True))``
+        The model's three outputs and the number of saturations it counts for this element (c2 and inv
+        interpolations that use a clipped table entry, c12 saturating).
+    latency : int
+        6 cycles from an accepted input to its output.
+
+    Algorithm (the model's steps 1-5; every stage ends in a register):
+
+    - cycle 1: product f * K_raw; comparisons f <= F1, f >= F2;
+    - cycle 2: position pos in UQ(S, P): for pos_shift s > 0, q = f K_raw - OFF + 2^(s-1) in one
+      subtraction and pos = clamp(q >> s, 0, 2^(S+P)); for s <= 0, pos = min(D << -s, 2^(S+P)) with
+      D = max(f K_raw - OFF, 0); then 0 for f <= F1, 2^(S+P) for f >= F2;
+    - cycle 3: idx = pos >> P, frac = pos mod 2^P (idx = 2^S - 1, frac = 2^P at the end point 2^(S+P));
+      two ROMs (c2, inv) of 2^S words, read synchronously at idx. Word j holds tab[j], the difference
+      tab[j+1] - tab[j] and the clip flags of entries j and j+1;
+    - cycle 4: products frac * (tab[idx+1] - tab[idx]); saturation flags
+      clip[idx] | (clip[idx+1] & frac != 0);
+    - cycle 5: value = tab[idx] + ((product + 2^(P-1)) >> P) for both tables;
+    - cycle 6: c12 = c2 + c1_raw, saturated into c2_shape (counted).
+
+    Throughput: one input per cycle, no stalls.
+    """
+
+    def __init__(self, model: DamperTable):
+        if not isinstance(model, DamperTable):
+            raise TypeError(f"DamperUnit needs a hw.funcunits.DamperTable model, got "
+                            f"{type(model).__name__} ({model!r})")
+        self.model = model
+        self.latency = 6
+        c2s, invs = _raw_shape(model.c2_shape), _raw_shape(model.inv_shape)
+        super().__init__({
+            "i": In(stream.Signature(_raw_shape(model.f_shape), always_ready=True)),
+            "o": Out(stream.Signature(data.StructLayout({"c2": c2s, "c12": c2s, "inv": invs,
+                                                         "saturations": unsigned(2)}),
+                                      always_ready=True)),
+        })
+
+    @staticmethod
+    def _rom_layout(tab, clip, shape: Shape):
+        tab = [int(v) for v in tab]
+        deltas = [b - a for a, b in zip(tab[:-1], tab[1:])]
+        layout = data.StructLayout({"lo": _raw_shape(shape),
+                                    "delta": signed(_signed_bits(min(deltas), max(deltas))),
+                                    "clip_lo": 1, "clip_hi": 1})
+        init = [{"lo": tab[j], "delta": deltas[j], "clip_lo": int(bool(clip[j])),
+                 "clip_hi": int(bool(clip[j + 1]))} for j in range(len(deltas))]
+        return layout, init
+
+    def elaborate(self, platform):
+        m = Module()
+        p = _Pipe(m)
+        md = self.model
+        fs, c2_shape = md.f_shape, md.c2_shape
+        S, P = md.S, md.P
+        cap = 1 << (S + P)
+
+        valid = self.i.valid
+        for j in range(self.latency):
+            v = Signal(name=f"valid_{j + 1}")
+            m.d.sync += v.eq(valid)
+            valid = v
+        m.d.comb += self.o.valid.eq(valid)
+
+        # ---- cycle 1: product and the flat pieces
+        f = self.i.payload
+        prod = p.reg(f * md.K_raw, name="fk")
+        # the product as a signed value (zero-extended when f is unsigned), for the signed subtraction
+        prod_s = prod if prod.shape().signed else Cat(prod, Const(0, 1)).as_signed()
+        low = p.reg(f <= md.F1, name="low")
+        high = p.reg(f >= md.F2 if md.F2 <= fs.max_raw else Const(0), unsigned(1), name="high")
+
+        # ---- cycle 2: position
+        s = md.pos_shift
+        pos_i = Signal(range(cap + 1))
+        if s > 0:
+            d_max = max(fs.max_raw * md.K_raw - md.OFF, 0)
+            s_eff = min(s, d_max.bit_length() + 1)      # shift_round(D, s) = 0 for all D < 2^(s_eff-1)
+            q = Signal(signed(max(len(prod_s), _bits(abs(md.OFF))) + 3))
+            m.d.comb += q.eq(prod_s - (md.OFF - (1 << (s_eff - 1))))
+            qs = q.shift_right(s_eff)
+            with m.If(q < 0):                           # D < 0: pos = 0
+                m.d.comb += pos_i.eq(0)
+            with m.Elif(qs >= cap):
+                m.d.comb += pos_i.eq(cap)
+            with m.Else():
+                m.d.comb += pos_i.eq(qs)
+        else:
+            lim = 1 << max(S + P + s, 0)
+            dd = Signal(signed(max(len(prod_s), _bits(abs(md.OFF))) + 2))
+            m.d.comb += dd.eq(prod_s - md.OFF)
+            with m.If(dd < 0):
+                m.d.comb += pos_i.eq(0)
+            with m.Elif(dd >= lim):
+                m.d.comb += pos_i.eq(cap)
+            with m.Else():
+                m.d.comb += pos_i.eq(dd[:max(S + P + s, 0)].as_unsigned().shift_left(-s))
+        pos = p.reg(Mux(low, 0, Mux(high, cap, pos_i)), unsigned(S + P + 1), name="pos")
+
+        # ---- cycle 3: table ROMs at idx
+        end = pos[S + P]
+        idx = Mux(end, (1 << S) - 1, pos[P:S + P])
+        frac = Mux(end, 1 << P, pos[:P])
+        frac3 = p.reg(frac, unsigned(P + 1), name="frac")
+        rows = {}
+        for key, tab, clip, shape in (("c2", md.tab_c2, md.clip_c2, md.c2_shape),
+                                      ("inv", md.tab_inv, md.clip_inv, md.inv_shape)):
+            layout, init = self._rom_layout(tab, clip, shape)
+            rom = Memory(shape=layout, depth=len(init), init=init)
+            m.submodules[f"rom_{key}"] = rom
+            rp = rom.read_port(domain="sync")
+            m.d.comb += rp.addr.eq(idx)
+            rows[key] = rp.data
+
+        # ---- cycles 4 and 5: interpolation
+        vals, sats = {}, {}
+        for key, shape in (("c2", md.c2_shape), ("inv", md.inv_shape)):
+            row = rows[key]
+            pr = p.reg(frac3 * row.delta, name=f"{key}_prod")
+            lo = p.reg(row.lo, name=f"{key}_lo")
+            sat = p.reg(row.clip_lo | (row.clip_hi & (frac3 != 0)), name=f"{key}_sat")
+            vals[key] = p.reg(lo + (pr + (1 << (P - 1))).shift_right(P), _raw_shape(shape), name=key)
+            sats[key] = p.reg(sat)
+
+        # ---- cycle 6: c12 = c1 + c2, saturated
+        c12 = vals["c2"] + md.c1_raw
+        c12_ovf = (c12 > c2_shape.max_raw) | (c12 < c2_shape.min_raw)
+        c12_sat = Mux(c12 > c2_shape.max_raw, c2_shape.max_raw,
+                      Mux(c12 < c2_shape.min_raw, c2_shape.min_raw, c12))
+        o_c12 = p.reg(c12_sat, _raw_shape(c2_shape), name="out_c12")
+        o_c2 = p.reg(vals["c2"], name="out_c2")
+        o_inv = p.reg(vals["inv"], name="out_inv")
+        o_sat = p.reg(sats["c2"] + sats["inv"] + c12_ovf, unsigned(2), name="out_sat")
+        m.d.comb += [self.o.payload.c2.eq(o_c2), self.o.payload.c12.eq(o_c12),
+                     self.o.payload.inv.eq(o_inv), self.o.payload.saturations.eq(o_sat)]
+        return m

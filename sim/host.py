@@ -1,0 +1,91 @@
+"""The host side of the accelerator's register interface (hw/core.py): load a scene, run, read back.
+
+Written once against a tiny asynchronous bus (`write(addr, data)`, `read_many(addrs)`, `wait(cycles)`),
+so that Amaranth's simulator (sim/hwsim.py) and the cocotb testbenches on Icarus and Verilator
+(sim/cocotb_core.py) drive the core the same way. The driver needs only the address lists, which a
+`job` dict carries into a simulator process that has no scene at hand.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from hw.core import REG_CYCLES, REG_RUN, REG_SAT, REG_SAT_FLAGS, REG_STATUS, REG_STEP
+
+
+def to_signed32(v: int) -> int:
+    v = int(v) & 0xFFFFFFFF
+    return v - (1 << 32) if v & (1 << 31) else v
+
+
+class HostDriver:
+    def __init__(self, dim: int, node_addrs, elem_addrs, cycles_per_step: int, bus=None):
+        self.dim, self.bus, self.cycles_per_step = int(dim), bus, int(cycles_per_step)
+        self.node_addrs = [np.asarray(a, np.int64) for a in node_addrs]      # 2D fields: x_k, u_k
+        self.elem_addrs = [np.asarray(a, np.int64) for a in elem_addrs]      # a [, |T_prev|]
+        self.has_fp = len(self.elem_addrs) > 1
+
+    @classmethod
+    def for_config(cls, cfg, cycles_per_step: int, bus=None) -> "HostDriver":
+        n, e = np.arange(cfg.n_nodes), np.arange(cfg.n_elements)
+        elem = [cfg.elem_addr(0, e)] + ([cfg.elem_addr(1, e)] if cfg.params.damper is not None else [])
+        return cls(cfg.dim, [cfg.node_addr(f, n) for f in range(2 * cfg.dim)], elem, cycles_per_step, bus)
+
+    def to_job(self) -> dict:
+        return {"dim": self.dim, "cycles_per_step": self.cycles_per_step,
+                "node_addrs": np.stack(self.node_addrs), "elem_addrs": np.stack(self.elem_addrs)}
+
+    @classmethod
+    def from_job(cls, job, bus=None) -> "HostDriver":
+        return cls(int(job["dim"]), list(job["node_addrs"]), list(job["elem_addrs"]), int(job["cycles_per_step"]), bus)
+
+    # ---- commands
+    def load_words(self, X, U, A, FP=None, step: int = 0) -> list[tuple[int, int]]:
+        """The (address, data) writes that load a whole state (raw integers) and the step counter."""
+        words = []
+        for f, vals in enumerate(list(X) + list(U)):
+            words += [(int(a), int(v)) for a, v in zip(self.node_addrs[f], np.asarray(vals))]
+        words += [(int(a), int(v)) for a, v in zip(self.elem_addrs[0], np.asarray(A))]
+        if self.has_fp:
+            fp = np.zeros(len(self.elem_addrs[1]), np.int64) if FP is None else np.asarray(FP)
+            words += [(int(a), int(v)) for a, v in zip(self.elem_addrs[1], fp)]
+        return words + [(REG_STEP, int(step)), (REG_SAT, 0)]      # the last write clears the saturations
+
+    async def write_words(self, words):
+        for addr, data in words:
+            await self.bus.write(int(addr), int(data))
+
+    async def load(self, X, U, A, FP=None, step: int = 0):
+        await self.write_words(self.load_words(X, U, A, FP, step))
+
+    async def run(self, steps: int) -> int:
+        """Run `steps` steps and wait until the core is idle; returns the cycles the run took."""
+        before = (await self.bus.read_many([REG_CYCLES]))[0]
+        await self.bus.write(REG_RUN, int(steps))
+        await self.bus.wait(max(1, steps * self.cycles_per_step - 8))
+        while (await self.bus.read_many([REG_STATUS]))[0] & 1:
+            await self.bus.wait(4)
+        after = (await self.bus.read_many([REG_CYCLES]))[0]
+        return (after - before) & 0xFFFFFFFF
+
+    @property
+    def read_addrs(self) -> list[int]:
+        addrs = np.concatenate(self.node_addrs + self.elem_addrs + [np.array([REG_STEP, REG_SAT, REG_SAT_FLAGS])])
+        return [int(a) for a in addrs]
+
+    async def read_raw(self) -> list[int]:
+        return await self.bus.read_many(self.read_addrs)
+
+    def decode(self, vals):
+        """Raw read-back words -> (X list, U list, A, FP or None, step, saturation count, flags)."""
+        D = self.dim
+        N, E = len(self.node_addrs[0]), len(self.elem_addrs[0])
+        s = np.array([to_signed32(v) for v in vals], np.int64)
+        nodes = [s[f * N:(f + 1) * N] for f in range(2 * D)]
+        off = 2 * D * N
+        A = s[off:off + E]
+        FP = s[off + E:off + 2 * E] if self.has_fp else None
+        step, sat, flags = (int(v) & 0xFFFFFFFF for v in vals[-3:])
+        return nodes[:D], nodes[D:], A, FP, step, sat, flags
+
+    async def read_state(self):
+        return self.decode(await self.read_raw())

@@ -1,0 +1,137 @@
+"""The Amaranth core equals the bit-true model bit for bit: every built-in scene without collisions.
+
+The core runs in Amaranth's simulator behind its host interface (sim/hwsim.py); the bit-true model
+(hw/bittrue.py) steps the same scene with the same formats. Both start from the same mid-run state
+(loaded through the host interface), so the forces, contacts and damper tables are busy, and every
+read-back (x, u, a, |T_prev|, the step counter and the saturation count) must be identical.
+"""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from golden.scene import builtin_names
+from hw.core import CoreConfig
+from sim.hwsim import AmaranthCore
+
+from conftest import bittrue, system
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENES = [n for n in builtin_names() if system(n).collision is None]
+
+
+def start_step(sys_):
+    """A step in the middle of the action: a third into the scene (at most 3000 steps in)."""
+    return min(sys_.n_steps // 3, 3000)
+
+
+def compare(bt, hw: AmaranthCore, start: int, steps: int, every: int):
+    """Advance the bit-true model to `start`, load its state into the core, then run both and compare."""
+    st = bt.initial_state()
+    for _ in range(start):
+        bt.step(st)
+    bt.sat.clear()
+    hw.call("load", st.X, st.U, st.A, st.FP, st.step)
+    cycles = []
+    for _ in range(steps // every):
+        for _ in range(every):
+            bt.step(st)
+        cycles.append(hw.call("run", every))
+        X, U, A, FP, step, sat, _ = hw.call("read_state")
+        assert step == st.step
+        for k in range(len(X)):
+            assert np.array_equal(X[k], st.X[k]), f"x{k} differs at step {st.step}"
+            assert np.array_equal(U[k], st.U[k]), f"u{k} differs at step {st.step}"
+        assert np.array_equal(A, st.A), f"a differs at step {st.step}"
+        if FP is not None:
+            assert np.array_equal(FP, st.FP), f"|T_prev| differs at step {st.step}"
+        assert sat == bt.sat.total, (sat, dict(bt.sat))
+    return st, cycles
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_core_equals_bittrue_bit_for_bit(name):
+    bt = bittrue(name, "wide")
+    hw = AmaranthCore(bt)
+    every = 4 if bt.sys.dim == 2 else 2         # 3D cores take ~3000 cycles a step in Python simulation
+    try:
+        st, cycles = compare(bt, hw, start_step(bt.sys), steps=3 * every, every=every)
+    finally:
+        hw.close()
+    moved = [np.abs(st.X[k] - bt.initial_state().X[k]).max() for k in range(bt.sys.dim)]
+    assert max(moved) > 0                                          # the state is not trivially still
+    assert all(c == every * hw.cycles_per_step for c in cycles), (cycles, hw.cycles_per_step)
+
+
+def test_core_equals_bittrue_over_200_steps_with_lanes():
+    """A 200-step run on P = 2 element (and pair) lanes and Q = 2 node lanes."""
+    bt = bittrue("gravity-2d-nonlinear", "wide")
+    hw = AmaranthCore(bt, lanes=2, node_lanes=2)
+    try:
+        _, cycles = compare(bt, hw, start_step(bt.sys), steps=200, every=50)
+    finally:
+        hw.close()
+    cfg = CoreConfig.of(bt, 2, 2)
+    per_step = cycles[0] / 50
+    expected = (max(-(-cfg.n_elements // 2), -(-cfg.n_pairs // 2)) + hw.core.drain_elements
+                + -(-cfg.n_nodes // 2) + hw.core.drain_nodes)
+    assert per_step == expected
+
+
+@pytest.mark.parametrize("preset", ["narrow", "medium"])
+def test_core_equals_bittrue_with_narrow_words(preset):
+    bt = bittrue("press-3d-rheological", preset)
+    hw = AmaranthCore(bt)
+    try:
+        compare(bt, hw, start_step(bt.sys), steps=2, every=1)
+    finally:
+        hw.close()
+
+
+def test_saturation_counts_match_in_a_scene_built_to_saturate(tmp_path):
+    """Formats sized for a gentle pull, then a 100x blow: both models count the same saturations."""
+    from hw.bittrue import BitTrue
+    scenes = ROOT / "tests" / "scenes"
+    gentle_text = (scenes / "pull-chain.toml").read_text()
+    hard_text = gentle_text.replace("force = [0.05, 0.0]", "force = [5.0, 0.0]")
+    assert hard_text != gentle_text
+    (tmp_path / "hard.toml").write_text(hard_text)
+    from golden.scene import compile_scene, load_scene
+    gentle = compile_scene(load_scene(str(scenes / "pull-chain.toml")))
+    hard = compile_scene(load_scene(str(tmp_path / "hard.toml")))
+    fmt = BitTrue(gentle, "narrow").formats
+    bt = BitTrue(hard, "narrow", formats=fmt)
+    hw = AmaranthCore(bt)
+    try:
+        compare(bt, hw, 0, steps=12, every=2)
+    finally:
+        hw.close()
+    assert bt.sat.total > 0                                        # it did saturate, and the counts matched
+
+
+def _rheo(*args):
+    return subprocess.run([sys.executable, "-m", "sim.cli", *args], cwd=ROOT, capture_output=True, text=True)
+
+
+def test_amaranth_backend_writes_the_same_run_file_as_the_fixed_backend(tmp_path):
+    outs = {}
+    for backend in ("fixed", "amaranth"):
+        out = tmp_path / f"{backend}.npz"
+        r = _rheo("simulate", "creep-1d", "--backend", backend, "--steps", "60", "--every", "20", "--out", str(out))
+        assert r.returncode == 0, r.stderr
+        outs[backend] = np.load(out)
+    for key in ("x_raw", "v_raw", "a_raw", "saturations", "x", "v"):
+        assert np.array_equal(outs["fixed"][key], outs["amaranth"][key]), key
+    assert outs["fixed"]["x_raw"].shape[0] == 4
+
+
+def test_hardware_refuses_collision_scenes_with_a_message(tmp_path):
+    for args in (("simulate", "fold-2d", "--backend", "amaranth", "--steps", "2", "--out", str(tmp_path / "r.npz")),
+                 ("verilog", "fold-2d", "--out", str(tmp_path / "v"))):
+        r = _rheo(*args)
+        assert r.returncode == 2 and "collisions" in r.stderr and "Traceback" not in r.stderr, r.stderr
+        assert not (tmp_path / "r.npz").exists() and not (tmp_path / "v" / "manifest.json").exists()
