@@ -19,8 +19,8 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(BIN)/rheo run --out $(OUT)
 
-## Whole test suite.
-test: $(STAMP)
+## Whole test suite (builds the pinned Verilator once into ~/.cache/rheo-fpga if needed).
+test: $(STAMP) verilator
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)

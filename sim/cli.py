@@ -160,30 +160,79 @@ def cmd_bench(args) -> int:
 
 
 def cmd_run(args) -> int:
-    """The main job: simulate the default scene and write the run, pictures and the VTK series."""
-    from sim import runfile
+    """The main job: golden and bit-true runs, the Verilog checked bit for bit on Icarus, the error
+    report, the synthesis summary, pictures and VTK; prints where everything went."""
+    from golden.model import frame_steps
+    from hw import emit
+    from hw.bittrue import BitTrue, simulate_fixed
+    from sim import report, runfile
+    from sim.hdlsim import emit_core, run_job
     from sim.render import render, render_before_after
     from sim.vtk_export import export_vtk
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     sys_ = _load_system(args.scene)
-    print(f"[1/4] simulating {sys_.name}: {sys_.n_nodes} nodes, {sys_.n_elements} elements, "
-          f"{sys_.n_steps} steps of {sys_.dt:g} s (golden, float64)")
+    n = 8 if args.synth else 7
+    print(f"[1/{n}] golden run of {sys_.name}: {sys_.n_nodes} nodes, {sys_.n_elements} elements, "
+          f"{sys_.n_steps} steps of {sys_.dt:g} s (float64)", flush=True)
     run, _ = _simulate(sys_, "golden", None, None)
     npz = runfile.save(out / f"{sys_.name}.npz", runfile.run_arrays(sys_, run, "golden"))
     print(f"      {run.wall_seconds:.2f} s wall -> {npz}")
-    print("[2/4] rendering frames")
+    print(f"[2/{n}] pictures, animation, VTK", flush=True)
     png = render(npz, out / f"{sys_.name}.png")
     peak = _peak_frame(sys_, run)
     ba = render_before_after(npz, out / f"{sys_.name}-before-after.png", [0, peak, len(run.t) - 1],
                              ["before", f"loaded (t = {run.t[peak]:.2f} s)", f"after release (t = {run.t[-1]:.2f} s)"])
-    print(f"      {png}\n      {ba}")
-    print("[3/4] rendering animation")
     gif = render(npz, out / f"{sys_.name}.gif")
-    print(f"      {gif}")
-    print("[4/4] exporting VTK time series")
     files = export_vtk(npz, out / "vtk")
-    print(f"      {len(files)} frames -> {out / 'vtk' / 'run.pvd'}")
+    print(f"      {png}\n      {ba}\n      {gif}\n      {len(files)} frames -> {out / 'vtk' / 'run.pvd'}")
+    print(f"[3/{n}] bit-true run (preset {args.preset})", flush=True)
+    with np.errstate(over="ignore", invalid="ignore"):
+        bt = BitTrue(sys_, args.preset)
+        frun, raws, _ = simulate_fixed(sys_, args.preset, bittrue=BitTrue(sys_, args.preset, formats=bt.formats))
+    size = float(np.ptp(sys_.x0, axis=0).max())
+    err = float(np.abs(frun.x - run.x).max() / size)
+    print(f"      max position error against golden: {err:.2e} of the object size, "
+          f"{int(raws['saturations'][-1])} saturations")
+    print(f"[4/{n}] Verilog and manifest", flush=True)
+    man = emit.write(bt, out / "verilog")
+    print(f"      {out / 'verilog' / man['verilog']}: {man['cycles_per_step']['value']} cycles per step, "
+          f"left out: {', '.join(u['unit'] for u in man['units_left_out']) or 'nothing'}")
+    steps = min(args.hdl_steps, sys_.n_steps)
+    print(f"[5/{n}] Icarus Verilog (cocotb): the first {steps} steps, checked bit for bit", flush=True)
+    core_dir, _, drv = emit_core(bt)
+    st = bt.initial_state()
+    every = max(1, steps // 4)
+    at = frame_steps(steps, every)
+    res = run_job("icarus", core_dir, drv, drv.load_words(st.X, st.U, st.A, st.FP, 0),
+                  [int(k) for k in np.diff(at)])
+    ref = BitTrue(sys_, args.preset, formats=bt.formats)
+    st = ref.initial_state()
+    for frame, target in zip(res["frames"], at[1:]):
+        while st.step < target:
+            ref.step(st)
+        X, U, A = frame[0], frame[1], frame[2]
+        same = all(np.array_equal(a, b) for a, b in zip(X + U, st.X + st.U)) and np.array_equal(A, st.A)
+        if not same:
+            raise UsageError(f"Icarus run differs from the bit-true model at step {st.step}: please report")
+    print(f"      {len(res['frames'])} read-backs equal the bit-true model; {res['wall_s']:.1f} s simulated wall "
+          f"({sum(res['cycles']) / max(res['wall_s'], 1e-9):.0f} cycles/s)")
+    print(f"[6/{n}] error against run time report", flush=True)
+    with np.errstate(over="ignore", invalid="ignore"):
+        summary = report.build(sys_, out / "report", presets=["narrow", "medium", "wide"], log=lambda m: None)
+    for preset, q in summary["quantisation"].items():
+        if "max_relative" in q:
+            print(f"      {preset:7s} max {q['max_relative']:.2e} of the object size")
+    if args.synth:
+        from sim.synth import synthesize
+        print(f"[7/{n}] synthesis for ECP5-85k (preset narrow: one 18x18 multiplier per product)", flush=True)
+        with np.errstate(over="ignore", invalid="ignore"):
+            nb = BitTrue(sys_, "narrow")
+        nm = emit.write(nb, out / "synth")
+        r = synthesize(out / "synth" / nm["verilog"], nm["top"], out / "synth", clock_mhz=100.0)
+        print(f"      {r['luts']} LUTs, {r['flip_flops']} FFs, {r['mult18x18']} multipliers, {r['block_rams']} "
+              f"block RAMs, Fmax {r['fmax_mhz']} MHz -> {out / 'synth' / 'report.md'}")
+    print(f"[{n}/{n}] done: {out}/ holds the runs, pictures, verilog/, report/" + (", synth/" if args.synth else ""))
     return 0
 
 
@@ -285,6 +334,9 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("run", help="the main job: simulate the default scene, render it and export it")
     s.add_argument("--scene", default=DEFAULT_SCENE, help=f"scene (default: {DEFAULT_SCENE})")
     s.add_argument("--out", default="out", help="output directory (default: out)")
+    s.add_argument("--preset", default="wide", choices=PRESETS, help="format preset of the bit-true run and Verilog")
+    s.add_argument("--hdl-steps", type=_positive_int, default=200, help="steps run on Icarus (default 200)")
+    s.add_argument("--no-synth", dest="synth", action="store_false", help="skip the synthesis (minutes)")
     s.set_defaults(func=cmd_run)
     return p
 

@@ -5,7 +5,6 @@ tests/cocotb_smoke.py on both simulators. A missing simulator is a FAILURE
 (SimulatorMissing propagates), never a skip: run `make verilator` once per machine.
 """
 
-import os
 import stat
 from pathlib import Path
 
