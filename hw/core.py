@@ -216,7 +216,7 @@ class Core(wiring.Component):
                 add_mem(f"u{k}_{q}", Um[k][q])
         node_fields = [Xm[k] for k in range(D)] + [Um[k] for k in range(D)]
 
-        def read_node(word, slot, stage_word_valid_at, name):
+        def read_node(word, slot, name):
             """Read ports on every node field for a node (word, slot); data one cycle later."""
             outs = []
             slot_d = Signal.like(slot, name=f"{name}_slot_d")
@@ -288,8 +288,8 @@ class Core(wiring.Component):
                 vals = np.zeros(S, np.int64)
                 vals[:len(items)] = arr
                 rom_fields.append((sig, vals))
-            Xi, Ui = read_node(iw, is_, 1, f"el{lane}_ni")
-            Xj, Uj = read_node(jw, js, 1, f"el{lane}_nj")
+            Xi, Ui = read_node(iw, is_, f"el{lane}_ni")
+            Xj, Uj = read_node(jw, js, f"el{lane}_nj")
             # element state
             a_shape, f_shape = as_shape(fmt["a"]), as_shape(fmt["force"])
             has_a, has_fp = not p.fixed_a, p.damper is not None
@@ -351,7 +351,7 @@ class Core(wiring.Component):
                         vals = np.zeros(SP, np.int64)
                         vals[:len(items)] = arr
                         rom_fields.append((sig, vals))
-                    Xr, Ur = read_node(w_, s_, 1, f"pr{lane}_n{r}")
+                    Xr, Ur = read_node(w_, s_, f"pr{lane}_n{r}")
                     X_roles.append(Xr)
                     U_roles.append(Ur)
                     words.append(w_)

@@ -58,6 +58,16 @@ class _Pipe:
         return value
 
 
+def _delay_valid(m, i_valid, o_valid, latency):
+    """o_valid is i_valid delayed by `latency` registers (the units never stall)."""
+    valid = i_valid
+    for j in range(latency):
+        v = Signal(name=f"valid_{j + 1}")
+        m.d.sync += v.eq(valid)
+        valid = v
+    m.d.comb += o_valid.eq(valid)
+
+
 class RsqrtUnit(wiring.Component):
     """Reciprocal square root 1/sqrt(v), bit-true to a `hw.funcunits.Rsqrt` model (the specification).
 
@@ -132,13 +142,7 @@ class RsqrtUnit(wiring.Component):
         Wn = _bits(ins.max_raw)          # bit length of the largest positive input
         L_CAP = out.width                # a left shift by >= out.width overflows for every y >= 1
 
-        # valid: the input's valid bit delayed by the latency
-        valid = self.i.valid
-        for j in range(self.latency):
-            v = Signal(name=f"valid_{j + 1}")
-            m.d.sync += v.eq(valid)
-            valid = v
-        m.d.comb += self.o.valid.eq(valid)
+        _delay_valid(m, self.i.valid, self.o.valid, self.latency)   # o.valid = i.valid, latency later
 
         # ---- cycle 1: sign test and bit length
         x = self.i.payload
@@ -295,12 +299,7 @@ class DamperUnit(wiring.Component):
         S, P = md.S, md.P
         cap = 1 << (S + P)
 
-        valid = self.i.valid
-        for j in range(self.latency):
-            v = Signal(name=f"valid_{j + 1}")
-            m.d.sync += v.eq(valid)
-            valid = v
-        m.d.comb += self.o.valid.eq(valid)
+        _delay_valid(m, self.i.valid, self.o.valid, self.latency)
 
         # ---- cycle 1: product and the flat pieces
         f = self.i.payload
