@@ -99,6 +99,16 @@ class Collision:
         vert = order[np.repeat(start, count) + np.arange(total) - first]
         return vert, np.repeat(fac, count)
 
+    def all_pairs(self) -> np.ndarray:
+        """Every (vertex, facet) pair that may ever touch, as (P, D + 1) node indices: each surface vertex
+        with each surface facet, less the excluded ones. The hardware streams all of them every step
+        (no broad phase); the gate inside the pair computation selects the touching ones."""
+        V, S = len(self.vertices), len(self.facets)
+        node = np.repeat(self.vertices, S)
+        fn = np.tile(self.facets, (V, 1))
+        keep = ~self._excluded(node, fn)
+        return np.concatenate([node[keep, None], fn[keep]], 1).astype(np.int64)
+
     def _excluded(self, node, facet_nodes):
         """A vertex of the facet itself or joined to one of its vertices by an element."""
         excl = np.any(facet_nodes == node[:, None], axis=1)

@@ -431,9 +431,10 @@ def compile_scene(scene: Scene) -> System:
                                   chk.number(co, "mu", "collision", default=0.0, lo=0),
                                   chk.number(co, "k_f", "collision", default=math.nan, lo=0, lo_open=True))
 
-    # default friction regularisation: m_min / dt, half the explicit limit 2 m / dt of a damper on m
-    kf_default = float(cat(mass).min()) / dt
-    for holder in (floor, collision):
+    # default friction regularisation: half the explicit limit of the slip damper. On the floor the limit is
+    # 2 m / dt (one node); a vertex-facet pair moves both sides (relative mobility up to 2 / m): m / dt
+    m_min = float(cat(mass).min())
+    for holder, kf_default in ((floor, m_min / dt), (collision, m_min / (2.0 * dt))):
         if holder is not None and math.isnan(holder.k_f):
             holder.k_f = kf_default
 

@@ -29,7 +29,8 @@ class Gate:
     """The items of an array for which a condition holds (the hardware gates the same items with a flag).
 
     `take` keeps the active items, `expand` puts active items back into a full array with zeros
-    elsewhere, `gate` nests a further condition. `empty`: no active item (the array code skips the rest).
+    elsewhere, `lift` does so one level up only (into the enclosing gate's items), `gate` nests a
+    further condition. `empty`: no active item (the array code skips the rest).
     """
 
     def __init__(self, ar, cond, parent=None, n=None):
@@ -45,10 +46,13 @@ class Gate:
     def gate(self, cond):
         return Gate(self.ar, cond, self)
 
-    def expand(self, v):
+    def lift(self, v):
         out = np.zeros(self.n, v.x.dtype)
         out[self.idx] = v.x
-        full = V(out, v.q)
+        return V(out, v.q)
+
+    def expand(self, v):
+        full = self.lift(v)
         return self.parent.expand(full) if self.parent is not None else full
 
     @property

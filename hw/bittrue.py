@@ -16,7 +16,7 @@ from .fixed import Saturations
 from .formats import PRESETS, FormatSet, derive
 from .units import HardwareUnits
 
-RSQRT_INPUTS = {"inv_l": "l2", "tinv": "tl2", "tinv2": "tl4", "finv": "fmag2"}
+RSQRT_INPUTS = {"inv_l": "l2", "tinv": "tl2", "tinv2": "tl4", "finv": "fmag2", "cinv": "cl2", "cinv2": "cl4"}
 
 
 def float_state(sys: System, units: HardwareUnits, x, v, a, f_prev=None, step_no=0) -> HwState:

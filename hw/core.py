@@ -4,12 +4,15 @@ One time step runs in two phases:
 
   ELEMENTS  every element lane streams its elements, one per clock (II = 1), through the element
             pipeline (hw/datapath.py `element_kernel`, built by hw/pipeline.py); every pair lane streams
-            its topology pairs through the pair pipeline (`pair_kernel`) at the same time. Each lane
+            its topology pairs through the pair pipeline (`pair_kernel`), and every collision lane its
+            (surface vertex, surface facet) pairs through the collision pipeline (`collision_kernel`: no
+            broad phase, the static list of every pair that may touch), at the same time. Each lane
             writes its new element state and adds its forces into its own force accumulator banks.
   NODES     every node lane streams its nodes through the node pipeline (`node_kernel`: sum of the banks,
             floor, friction, loads, mass, gravity, pins), writes u and x, and clears the banks.
 
-  cycles per step = max(ceil(E/P), ceil(pairs/P)) + drain_elements + ceil(N/Q) + drain_nodes
+  cycles per step = max(ceil(E/P), ceil(pairs/P), ceil(collision pairs/P)) + drain_elements + ceil(N/Q)
+                    + drain_nodes
 
 Force accumulation without read-after-write hazards, by construction: every lane owns one accumulator
 bank per role (element: node i, node j; pair: the vertex and each facet vertex), a simple dual-port
@@ -46,7 +49,10 @@ from amaranth.lib import wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
-from .datapath import Params, _node_flags, element_kernel, node_kernel, pair_kernel
+from .datapath import Params, _node_flags, collision_kernel, element_kernel, node_kernel, pair_kernel
+
+# (vertex, facet) pair kinds: lane name prefix, Params table, per-item kernel
+PAIR_KINDS = (("pr", "topology", pair_kernel), ("co", "collision", collision_kernel))
 from .pipeline import PipeArith
 from .rtl_fixed import as_shape
 
@@ -97,9 +103,20 @@ class CoreConfig:
     def n_elements(self):
         return len(self.params.i)
 
+    def pairs(self, kind: str) -> np.ndarray:
+        """The (vertex, facet) pairs of one kind ("topology" or "collision"), (n, D + 1); empty if absent."""
+        table = getattr(self.params, kind)
+        return np.zeros((0, self.dim + 1), np.int64) if table is None else table["pairs"]
+
     @property
     def n_pairs(self):
-        return 0 if self.params.topology is None else len(self.params.topology["pairs"])
+        """Topology preservation pairs."""
+        return len(self.pairs("topology"))
+
+    @property
+    def n_collision_pairs(self):
+        """Collision pairs (every surface vertex with every surface facet it may touch)."""
+        return len(self.pairs("collision"))
 
     @property
     def node_words(self):
@@ -113,6 +130,10 @@ class CoreConfig:
     @property
     def pair_slots(self):
         return -(-self.n_pairs // self.lanes)
+
+    @property
+    def collision_slots(self):
+        return -(-self.n_collision_pairs // self.lanes)
 
     def lane_items(self, n_items, lane):
         return np.arange(lane, n_items, self.lanes)
@@ -147,6 +168,14 @@ class CoreConfig:
 
     def features(self):
         return self.params.features()
+
+
+def schedule(cfg: CoreConfig) -> dict:
+    """The core's static timing (elaborates it, no Verilog): cycles per step and the pipeline drains."""
+    core = Core(cfg)
+    core.elaborate(None)
+    return {"cycles_per_step": core.cycles_per_step, "drain_elements": core.drain_elements,
+            "drain_nodes": core.drain_nodes, "lanes": cfg.lanes, "node_lanes": cfg.node_lanes}
 
 
 def _tree_sum(values):
@@ -332,35 +361,38 @@ class Core(wiring.Component):
                         neg, en, s_out, ar))
             drains.append(s_out + 2)
 
-        # ---------------------------------------------------------------- pair lanes (topology)
-        if p.topology is not None:
-            pairs = p.topology["pairs"]
-            SP = cfg.pair_slots
+        # ---------------------------------------------------------------- pair lanes (topology, collisions)
+        for prefix, kind, kernel in PAIR_KINDS:
+            pairs = cfg.pairs(kind)
+            if not len(pairs):
+                continue
+            SP = -(-len(pairs) // P)
             for lane in range(P):
-                items = cfg.lane_items(cfg.n_pairs, lane)
-                valid0 = Signal(name=f"pr{lane}_valid0")
+                items = cfg.lane_items(len(pairs), lane)
+                valid0 = Signal(name=f"{prefix}{lane}_valid0")
                 m.d.comb += valid0.eq(elem_phase_valid & (cnt < len(items)))
                 rom_fields = []
-                ar = PipeArith(m, fmt, cfg.units, valid0, f"pr{lane}", None, param_stage=1)
+                ar = PipeArith(m, fmt, cfg.units, valid0, f"{prefix}{lane}", None, param_stage=1)
                 all_arith.append(ar)
                 X_roles, U_roles, words, slots = [], [], [], []
                 for r in range(D + 1):
                     nodes = pairs[items, r]
-                    w_, s_ = Signal(_bits(W) + 1, name=f"pr{lane}_w{r}"), Signal(_bits(Q) + 1, name=f"pr{lane}_s{r}")
+                    w_ = Signal(_bits(W) + 1, name=f"{prefix}{lane}_w{r}")
+                    s_ = Signal(_bits(Q) + 1, name=f"{prefix}{lane}_s{r}")
                     for sig, arr in ((w_, nodes // Q), (s_, nodes % Q)):
                         vals = np.zeros(SP, np.int64)
                         vals[:len(items)] = arr
                         rom_fields.append((sig, vals))
-                    Xr, Ur = read_node(w_, s_, f"pr{lane}_n{r}")
+                    Xr, Ur = read_node(w_, s_, f"{prefix}{lane}_n{r}")
                     X_roles.append(Xr)
                     U_roles.append(Ur)
                     words.append(w_)
                     slots.append(s_)
-                self._rom(m, add_mem, f"pr{lane}_rom", rom_fields, SP, cnt)
+                self._rom(m, add_mem, f"{prefix}{lane}_rom", rom_fields, SP, cnt)
                 with ar:
                     ins = [[ar.input(v, "x", 2) for v in X_roles[r]] for r in range(D + 1)]
                     ins += [[ar.input(v, "u", 2) for v in U_roles[r]] for r in range(D + 1)]
-                    gate, contribs = pair_kernel(ar, p, *ins)
+                    gate, contribs = kernel(ar, p, *ins)
                     s_out = max(v.stage for _, v, _ in contribs)
                     cond = ar.delay(gate.cond.sig, gate.cond.stage, s_out)
                 en = ar.valid_at(s_out) & cond
@@ -369,7 +401,7 @@ class Core(wiring.Component):
                     for k, v, role in contribs:
                         if role == r:
                             per_k[k] = ar.at(v, s_out)
-                    rmw.append((make_bank(f"pr{lane}_r{r}", acc_width(pairs[items, r])),
+                    rmw.append((make_bank(f"{prefix}{lane}_r{r}", acc_width(pairs[items, r])),
                                 ar.delay(words[r], 1, s_out), ar.delay(slots[r], 1, s_out), per_k, en, s_out, ar))
                 drains.append(s_out + 2)
 
@@ -512,7 +544,7 @@ class Core(wiring.Component):
         # ---------------------------------------------------------------- control
         drain_e = max(drains)
         drain_n = n_drain + 1
-        C_E = max(cfg.element_slots, cfg.pair_slots)
+        C_E = max(cfg.element_slots, cfg.pair_slots, cfg.collision_slots)
         self.drain_elements, self.drain_nodes = drain_e, drain_n
         self.cycles_per_step = C_E + drain_e + W + drain_n
         with m.If(busy):

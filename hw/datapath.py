@@ -12,6 +12,10 @@ equals the golden model up to float rounding, a test) and `FixedArith` runs it b
               fe = T e: +fe to node i, -fe to node j
   topology    per (vertex k, facet): the facet normal n, distance d, foot weights w, normal speed;
               f = K (eps - d) - C ddot where d <= eps; +f n to k, -w f n to the facet (exact sum 0)
+  collisions  per (surface vertex, surface facet) of the static pair list (no broad phase): outward
+              normal n, distance d; where |d| <= h and the foot lies on the facet:
+              N = max(0, K (h - d) - C vn), friction -clip(k_f v_t, mu N); +F to the vertex, -w F to
+              the facet (exact sum 0)
   floor       N = max(0, -K h - C u_z) where h < 0, friction -clip(k_f u_t, mu N)
   loads       constant forces in their time windows
   nodes       u += mu_i F + g; pinned: u = 0; x += u;  a = clip(a + adot, a_min, a_max); f_prev = |T|
@@ -70,15 +74,13 @@ class Params:
     gravity: np.ndarray | None = None
     free: np.ndarray = None    # (N,) bool
     topology: dict | None = None
+    collision: dict | None = None
     floor: dict | None = None
     loads: list = field(default_factory=list)
     dt: float = 1.0
 
     @classmethod
     def of(cls, sys: System, units: HardwareUnits) -> "Params":
-        if sys.collision is not None:
-            raise NotSupported(f"scene '{sys.name}' uses collisions, which the bit-true model and the "
-                               f"hardware do not implement yet")
         el = sys.elem
         u = units
         uniform = lambda v: float(v) if np.isscalar(v) else (float(v[0]) if np.all(v == v[0]) else v)
@@ -89,14 +91,24 @@ class Params:
                 uniform(np.asarray(c1) * np.asarray(el.a_max)), el.a_min, el.a_max, el.fixed_a)
         if not el.fixed_a:
             if el.nonlinear:
-                vals = [np.atleast_1d(v) for v in (el.c1, el.c_min, el.c_max)]
-                if any(not np.all(v == v[0]) for v in vals) or not (np.isscalar(el.A) and np.isscalar(el.B)):
+                # one damper table per scene: every element whose a moves shares it (elements with
+                # a_min = a_max, viscoelastic objects beside rheological ones, never use their c2)
+                E = len(sys.edges)
+                moving = np.broadcast_to(np.asarray(el.a_min) < np.asarray(el.a_max), (E,))
+                varies = np.broadcast_to(np.asarray(el.c_max) > np.asarray(el.c_min), (E,))
+                if np.any(moving & ~varies):
+                    raise NotSupported(f"scene '{sys.name}': the hardware cannot mix constant and nonlinear "
+                                       f"dampers among elements whose a varies")
+                vals = [np.broadcast_to(np.asarray(v, float), (E,))[moving]
+                        for v in (el.c1, el.c_min, el.c_max, el.A, el.B)]
+                if any(not np.all(v == v[0]) for v in vals):
                     raise NotSupported(f"scene '{sys.name}': the hardware damper tables take one nonlinear "
                                        f"damper material per scene")
-                f1 = float(np.log(el.A / el.c_max) / el.B)
-                f2 = float(np.log(el.A / el.c_min) / el.B)
-                p.damper = DamperParams(float(u.damping(vals[0][0])), float(u.damping(el.c_min)),
-                                        float(u.damping(el.c_max)), float(u.force(f1)), float(u.force(f2)))
+                c1, c_min, c_max, A, B = (float(v[0]) for v in vals)
+                f1 = float(np.log(A / c_max) / B)
+                f2 = float(np.log(A / c_min) / B)
+                p.damper = DamperParams(float(u.damping(c1)), float(u.damping(c_min)), float(u.damping(c_max)),
+                                        float(u.force(f1)), float(u.force(f2)))
             else:
                 p.c2 = uniform(u.damping(el.c_min))
                 p.c12 = uniform(np.asarray(p.c1) + np.asarray(p.c2))
@@ -109,6 +121,10 @@ class Params:
             tp = sys.topology
             p.topology = dict(pairs=tp.pairs, K=float(u.stiffness(tp.K)), C=float(u.damping(tp.C)),
                               eps=float(u.length(tp.eps)))
+        if sys.collision is not None and len(sys.collision.facets):
+            co = sys.collision
+            p.collision = dict(pairs=co.all_pairs(), K=float(u.stiffness(co.K)), C=float(u.damping(co.C)),
+                               h=float(u.length(co.threshold)), mu=co.mu, kf=float(u.damping(co.k_f)))
         if sys.floor is not None:
             fl = sys.floor
             p.floor = dict(h=float(u.length(fl.height)), K=float(u.stiffness(fl.K)), C=float(u.damping(fl.C)),
@@ -123,6 +139,8 @@ class Params:
         return {"dim": self.dim, "k1_multiply": self.k1 is not None, "a_state": not self.fixed_a,
                 "damper_table": self.damper is not None, "per_node_mass": self.inv_mass is not None,
                 "gravity": self.gravity is not None, "topology": self.topology is not None,
+                "collision": self.collision is not None,
+                "collision_friction": bool(self.collision and self.collision["mu"] > 0),
                 "floor": self.floor is not None, "friction": bool(self.floor and self.floor["mu"] > 0),
                 "loads": bool(self.loads)}
 
@@ -153,13 +171,15 @@ def step(ar, st: HwState, p: Params) -> HwState:
     fe, newA, newFP = element_kernel(ar, p, take(X, p.i), take(X, p.j), take(U, p.i), take(U, p.j), A, FP)
     parts = [[(fe[k], p.i), (ar.neg(fe[k]), p.j)] for k in range(D)]
 
-    # ---- topology preservation
-    if p.topology is not None:
-        pairs = p.topology["pairs"]
+    # ---- topology preservation, collisions: (vertex, facet) pairs
+    for kernel, table in ((pair_kernel, p.topology), (collision_kernel, p.collision)):
+        if table is None:
+            continue
+        pairs = table["pairs"]
         roles = [pairs[:, 0]] + [pairs[:, 1 + m] for m in range(D)]
-        gate, contribs = pair_kernel(ar, p, *[take(X, r) for r in roles], *[take(U, r) for r in roles])
+        gate, contribs = kernel(ar, p, *[take(X, r) for r in roles], *[take(U, r) for r in roles])
         for k, v, role in contribs:
-            parts[k].append((v, roles[role][gate.idx]))
+            parts[k].append((v, roles[role][gate.full_idx]))
 
     F_elem = [ar.scatter(parts[k], N, "fe") for k in range(D)]     # exact sums, no rounding yet
 
@@ -323,7 +343,30 @@ def pair_kernel(ar, p: Params, *nodes):
             w = ar.select(ar.lt(w, zero_w), zero_w, w)
             w = ar.select(ar.lt(one, w), one, w)
             w_rest.append(w)
-    # relative velocity of the vertex and its foot: (u_k - u_0) - sum_m w_m (u_m - u_0)
+    vrel = _foot_velocity(ar, D, UV, UF, w_rest)
+    ddot = ar.sum([ar.mul(vrel[k], n[k], "ldot") for k in range(D)], "ldot")
+    f = ar.sub(ar.mul(ar.const("topo_K", tp["K"]), ar.sub(eps, dist, "tdist"), "force"),
+               ar.mul(ar.const("topo_C", tp["C"]), ddot, "force"), "force")
+    return gate, _split_to_facet(ar, D, [ar.mul(f, n[k], "fe") for k in range(D)], w_rest)
+
+
+def _split_to_facet(ar, D, F, w_rest):
+    """Contributions of a pair force F (per dimension): +F to the vertex (role 0), -w_m F to facet vertex m
+    (role 1 + m), the first facet vertex taking the remainder so that the pair's forces sum to exactly 0."""
+    out = []
+    for k in range(D):
+        out.append((k, F[k], 0))
+        rest_sum = None
+        for m, w in enumerate(w_rest, start=1):
+            Fm = ar.mul(w, F[k], "fe")
+            out.append((k, ar.neg(Fm), 1 + m))
+            rest_sum = Fm if rest_sum is None else ar.add(rest_sum, Fm, "fe")
+        out.append((k, ar.neg(ar.sub(F[k], rest_sum, "fe")), 1))
+    return out
+
+
+def _foot_velocity(ar, D, UV, UF, w_rest):
+    """Velocity of the vertex relative to its foot point: (u_k - u_0) - sum_m w_m (u_m - u_0)."""
     vrel = []
     for k in range(D):
         u0 = UF[0][k]
@@ -331,21 +374,80 @@ def pair_kernel(ar, p: Params, *nodes):
         for m, w in enumerate(w_rest, start=1):
             v = ar.sub(v, ar.mul(w, ar.sub(UF[m][k], u0, "du"), "du"), "du")
         vrel.append(v)
-    ddot = ar.sum([ar.mul(vrel[k], n[k], "ldot") for k in range(D)], "ldot")
-    f = ar.sub(ar.mul(ar.const("topo_K", tp["K"]), ar.sub(eps, dist, "tdist"), "force"),
-               ar.mul(ar.const("topo_C", tp["C"]), ddot, "force"), "force")
-    out = []
-    for k in range(D):
-        Fk = ar.mul(f, n[k], "fe")
-        out.append((k, Fk, 0))
-        rest_sum = None
-        for m, w in enumerate(w_rest, start=1):
-            Fm = ar.mul(w, Fk, "fe")
-            out.append((k, ar.neg(Fm), 1 + m))
-            rest_sum = Fm if rest_sum is None else ar.add(rest_sum, Fm, "fe")
-        # the first facet vertex takes the remainder, so the pair's forces sum to exactly zero
-        out.append((k, ar.neg(ar.sub(Fk, rest_sum, "fe")), 1))
-    return gate, out
+    return vrel
+
+
+def collision_kernel(ar, p: Params, *nodes):
+    """One collision pair (surface vertex, surface facet): returns (gate, [(dim, force, role)]) like
+    pair_kernel. The gate: |d| <= h along the facet's outward normal, then the foot on the facet, tested
+    on the weights' numerators (no division before the gate, so far pairs never saturate a weight)."""
+    D, co = p.dim, p.collision
+    XV, XF = nodes[0], nodes[1:D + 1]
+    UV, UF = nodes[D + 1], nodes[D + 2:]
+    r = [ar.sub(XV[k], XF[0][k], "cr") for k in range(D)]
+    if D == 2:
+        edge = [ar.sub(XF[1][k], XF[0][k], "cr") for k in range(2)]
+        n2 = ar.sum([ar.mul(c, c, "cl2") for c in edge], "cl2")
+        inv = ar.rsqrt(n2, "cinv")
+        n = [ar.mul(edge[1], inv, "e"), ar.neg(ar.mul(edge[0], inv, "e"))]     # outward: (u_y, -u_x) / |u|
+    else:
+        e1 = [ar.sub(XF[1][k], XF[0][k], "cr") for k in range(3)]
+        e2 = [ar.sub(XF[2][k], XF[0][k], "cr") for k in range(3)]
+        c = [ar.sub(ar.mul(e1[(k + 1) % 3], e2[(k + 2) % 3], "cl2"), ar.mul(e1[(k + 2) % 3], e2[(k + 1) % 3], "cl2"),
+                    "cl2") for k in range(3)]
+        n2 = ar.sum([ar.mul(ck, ck, "cl4") for ck in c], "cl4")
+        inv = ar.rsqrt(n2, "cinv2")
+        n = [ar.mul(ck, inv, "e") for ck in c]
+    dist = ar.sum([ar.mul(r[k], n[k], "cdist") for k in range(D)], "cdist")
+    h = ar.const("coll_h", co["h"])
+    near = ar.gate(ar.le(dist, h) & ar.le(ar.const("coll_h", -co["h"]), dist))
+    if near.empty:
+        return near, []
+    sub = near.take
+    r, n, dist, n2, inv = [sub(v) for v in r], [sub(v) for v in n], sub(dist), sub(n2), sub(inv)
+    if D == 2:
+        edge = [sub(v) for v in edge]
+        proj = ar.sum([ar.mul(r[k], edge[k], "cl2") for k in range(2)], "cl2")
+        foot = near.gate(ar.le(ar.zeros("cl2", 1), proj) & ar.le(proj, n2))
+        if foot.empty:
+            return foot, []
+        t = ar.mul(ar.mul(foot.take(proj), foot.take(inv), "cdist"), foot.take(inv), "w")
+        w_rest = [t]
+    else:
+        e1, e2 = [sub(v) for v in e1], [sub(v) for v in e2]
+        dot = lambda a, b: ar.sum([ar.mul(a[k], b[k], "cl2") for k in range(3)], "cl2")
+        d11, d22, d12, r1, r2 = dot(e1, e1), dot(e2, e2), dot(e1, e2), dot(r, e1), dot(r, e2)
+        w1n = ar.sub(ar.mul(d22, r1, "cl4"), ar.mul(d12, r2, "cl4"), "cl4")
+        w2n = ar.sub(ar.mul(d11, r2, "cl4"), ar.mul(d12, r1, "cl4"), "cl4")
+        zero4 = ar.zeros("cl4", 1)
+        foot = near.gate(ar.le(zero4, w1n) & ar.le(zero4, w2n) & ar.le(ar.sum([w1n, w2n], "cl4"), n2))
+        if foot.empty:
+            return foot, []
+        inv2 = ar.mul(foot.take(inv), foot.take(inv), "cinv4")
+        w_rest = [ar.mul(foot.take(wn), inv2, "w") for wn in (w1n, w2n)]
+    n, dist = [foot.take(v) for v in n], foot.take(dist)
+    UV, UF = [foot.take(near.take(v)) for v in UV], [[foot.take(near.take(v)) for v in uf] for uf in UF]
+    vrel = _foot_velocity(ar, D, UV, UF, w_rest)
+    vn = ar.sum([ar.mul(vrel[k], n[k], "ldot") for k in range(D)], "ldot")
+    N = ar.sub(ar.mul(ar.const("coll_K", co["K"]), ar.sub(h, dist, "cdist"), "force"),
+               ar.mul(ar.const("coll_C", co["C"]), vn, "force"), "force")
+    zero = ar.zeros("force", foot.size)
+    N = ar.select(ar.lt(N, zero), zero, N)
+    F = [ar.mul(N, n[k], "fe") for k in range(D)]
+    if co["mu"] > 0.0:
+        muN = ar.mul(ar.const("mu", co["mu"]), N, "force")
+        kf = ar.const("coll_kf", co["kf"])
+        if D == 2:
+            # slip speed along the tangent (-n_y, n_x); friction -clip(k_f v_t, mu N) on it
+            vt = ar.sub(ar.mul(vrel[1], n[0], "ldot"), ar.mul(vrel[0], n[1], "ldot"), "ldot")
+            f = ar.mul(kf, vt, "force")
+            f = ar.select(ar.lt(muN, f), muN, f)
+            f = ar.select(ar.lt(f, ar.neg(muN)), ar.neg(muN), f)
+            F = [ar.add(F[0], ar.mul(f, n[1], "fe"), "fe"), ar.sub(F[1], ar.mul(f, n[0], "fe"), "fe")]
+        else:
+            kfu = [ar.mul(kf, ar.sub(vrel[k], ar.mul(vn, n[k], "du"), "du"), "force") for k in range(3)]
+            F = [ar.sub(F[k], fk, "fe") for k, fk in enumerate(_capped_friction(ar, foot, kfu, muN))]
+    return foot, _split_to_facet(ar, D, F, w_rest)
 
 
 def floor_kernel(ar, p: Params, X, U):
@@ -371,14 +473,19 @@ def floor_kernel(ar, p: Params, X, U):
         f = ar.select(ar.lt(muN, f), muN, f)
         f = ar.select(ar.lt(f, ar.neg(muN)), ar.neg(muN), f)
         return out + [(0, gate.expand(ar.neg(f)))]
-    mag2 = ar.sum([ar.mul(c, c, "fmag2") for c in kfu], "fmag2")
-    slip = gate.gate(ar.lt(ar.zeros("fmag2", 1), mag2))     # no slip, no friction (and no rsqrt(0))
-    if slip.empty:
-        return out
-    inv = ar.rsqrt(slip.take(mag2), "finv")
-    ratio = ar.mul(slip.take(muN), inv, "w")
-    one = ar.const("w", 1.0)
-    ratio = ar.select(ar.lt(one, ratio), one, ratio)
-    for k in range(D - 1):
-        out.append((k, slip.expand(ar.neg(ar.mul(slip.take(kfu[k]), ratio, "force")))))
+    for k, fk in enumerate(_capped_friction(ar, gate, kfu, muN)):
+        out.append((k, gate.expand(ar.neg(fk))))
     return out
+
+
+def _capped_friction(ar, gate, kfu, muN):
+    """|friction| = min(mu N, |k_f v_t|) along kfu = k_f v_t (a vector, items of `gate`), without a division:
+    sticking (|kfu|^2 <= (mu N)^2) gives kfu itself; sliding scales kfu by mu N / |kfu| < 1 (1/sqrt unit).
+    The ratio is only formed when below 1, so it never saturates. Returns the force components (to negate)."""
+    mag2 = ar.sum([ar.mul(c, c, "fmag2") for c in kfu], "fmag2")
+    sliding = ar.lt(ar.mul(muN, muN, "fmag2"), mag2)
+    slide = gate.gate(sliding)
+    if slide.empty:
+        return kfu
+    ratio = ar.mul(slide.take(muN), ar.rsqrt(slide.take(mag2), "finv"), "w")
+    return [ar.select(sliding, slide.lift(ar.mul(slide.take(c), ratio, "force")), c) for c in kfu]

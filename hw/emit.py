@@ -26,13 +26,58 @@ SPECIALISATION = [
     ("constant_damper", lambda f: f["a_state"] and not f["damper_table"], "constant c2, c1 + c2, 1/(c1 + c2)"),
     ("previous_tension_memory", lambda f: f["damper_table"], "|T| of the previous step (damper table input)"),
     ("pair_pipeline", lambda f: f["topology"], "topology preservation pairs (vertex, opposite facet)"),
+    ("collision_pipeline", lambda f: f["collision"], "vertex-facet collision pairs (static list, no broad phase)"),
+    ("rsqrt_collision_facet", lambda f: f["collision"], "1/sqrt unit for the facet normal of a collision pair"),
+    ("collision_friction", lambda f: f["collision_friction"], "regularised Coulomb friction between objects"),
     ("floor_contact", lambda f: f["floor"], "floor penalty contact in the node pipeline"),
     ("friction", lambda f: f["friction"], "regularised Coulomb friction at the floor"),
-    ("rsqrt_friction", lambda f: f["friction"] and f["dim"] == 3, "1/sqrt unit for |tangential force| (3D)"),
+    ("rsqrt_friction", lambda f: (f["friction"] or f["collision_friction"]) and f["dim"] == 3,
+     "1/sqrt unit for |tangential force| (3D)"),
     ("gravity", lambda f: f["gravity"], "gravity added to every free node"),
     ("loads", lambda f: f["loads"], "external loads: per-node membership flags and step windows"),
     ("per_node_mass", lambda f: f["per_node_mass"], "per-node 1/m memory and multiplier (absent: uniform mass)"),
 ]
+
+
+def full_featured(sys):
+    """The scene with every optional unit switched on, for measuring what specialisation saves.
+
+    Same mesh, masses (one node 1.5x heavier: per-node mass), lanes and formats preset; added where the
+    scene lacks them: gravity, a floor with friction just under the object, topology preservation and
+    collisions with friction (when it has cells), a load on node 0, and a rheological material with a
+    nonlinear damper (k1 > 0, a state, damper tables). Its physics is plausible (the range analysis of
+    its formats runs it), but it is a resource yardstick, not a scene to study.
+    """
+    import dataclasses
+    import math
+    from golden import mesh as meshlib
+    from golden.contact import Collision, Floor
+    from golden.elements import ElementParams
+    from golden.model import Load, Topology
+    from golden.scene import PRESETS
+    D, N, E = sys.dim, sys.n_nodes, sys.n_elements
+    mat = PRESETS["rheological"]
+    l0 = np.linalg.norm(sys.x0[sys.edges[:, 1]] - sys.x0[sys.edges[:, 0]], axis=1)
+    elem = ElementParams.build(*(np.full(E, mat[k]) for k in ("k1", "c1", "a_min", "a_max")), mat["a0"] * l0,
+                               *(np.full(E, mat[k]) for k in ("c_min", "c_max", "f1", "f2")))
+    mass = sys.mass.copy()
+    mass[np.argmax(~sys.pinned)] *= 1.5
+    kf = float(mass.min()) / sys.dt
+    gravity = sys.gravity if np.any(sys.gravity) else np.eye(D)[D - 1] * -9.81
+    floor = sys.floor or Floor(float(sys.x0[:, D - 1].min()) - 1e-3, 1e4, 1.0, 0.3, kf)
+    floor = dataclasses.replace(floor, mu=floor.mu or 0.3, k_f=floor.k_f if floor.mu else kf)
+    topology, collision = sys.topology, sys.collision
+    if len(sys.cells) and topology is None:
+        topology = Topology(meshlib.topology_pairs(sys.cells, sys.x0), 1e3, 0.5, 0.002)
+    if len(sys.cells) and collision is None:
+        faces, _ = meshlib.boundary_faces(sys.cells, sys.x0)
+        keys = np.concatenate([sys.edges[:, 0] * N + sys.edges[:, 1], sys.edges[:, 1] * N + sys.edges[:, 0]])
+        collision = Collision(np.unique(faces), faces, np.sort(keys), N, 1e4, 1.0, 0.002, 0.3, kf / 2)
+    elif collision is not None and not collision.mu:
+        collision = dataclasses.replace(collision, mu=0.3, k_f=kf / 2)
+    loads = sys.loads or [Load(np.array([0]), np.eye(D)[0] * 1e-3, 0.0, math.inf)]
+    return dataclasses.replace(sys, name=f"{sys.name}-full", mass=mass, elem=elem, a0=np.full(E, mat["a0"]),
+                               gravity=gravity, floor=floor, topology=topology, collision=collision, loads=loads)
 
 
 def build(bt: BitTrue, lanes: int = 1, node_lanes: int = 1):
@@ -49,16 +94,16 @@ def manifest(bt: BitTrue, core: Core) -> dict:
     feats = cfg.features()
     present = [{"unit": u, "what": what} for u, need, what in SPECIALISATION if need(feats)]
     absent = [{"unit": u, "what": what} for u, need, what in SPECIALISATION if not need(feats)]
-    E, N, Pn = cfg.n_elements, cfg.n_nodes, cfg.n_pairs
+    E, N, Pn, Cn = cfg.n_elements, cfg.n_nodes, cfg.n_pairs, cfg.n_collision_pairs
     mems = core.memories
     return {
         "top": TOP,
         "scene": bt.sys.name,
         "preset": bt.formats.preset.name,
         "dim": cfg.dim,
-        "nodes": N, "elements": E, "pairs": Pn,
+        "nodes": N, "elements": E, "pairs": Pn, "collision_pairs": Cn,
         "lanes": {"element_lanes_P": cfg.lanes, "pair_lanes": cfg.lanes if Pn else 0,
-                  "node_lanes_Q": cfg.node_lanes},
+                  "collision_lanes": cfg.lanes if Cn else 0, "node_lanes_Q": cfg.node_lanes},
         "features": {k: (bool(v) if not isinstance(v, int) or isinstance(v, bool) else v) for k, v in feats.items()},
         "units_present": present,
         "units_left_out": absent,
@@ -68,8 +113,9 @@ def manifest(bt: BitTrue, core: Core) -> dict:
         "memories": mems,
         "memory_bits": int(sum(m["depth"] * m["width"] for m in mems)),
         "cycles_per_step": {
-            "formula": "max(ceil(E/P), ceil(pairs/P)) + drain_elements + ceil(N/Q) + drain_nodes",
-            "E": E, "pairs": Pn, "N": N, "P": cfg.lanes, "Q": cfg.node_lanes,
+            "formula": "max(ceil(E/P), ceil(pairs/P), ceil(collision_pairs/P)) + drain_elements + ceil(N/Q) "
+                       "+ drain_nodes",
+            "E": E, "pairs": Pn, "collision_pairs": Cn, "N": N, "P": cfg.lanes, "Q": cfg.node_lanes,
             "drain_elements": core.drain_elements, "drain_nodes": core.drain_nodes,
             "value": core.cycles_per_step,
         },

@@ -49,6 +49,13 @@ QUANTITIES = {
     "tinv4": ("operand", "topology (3D): 1 / |cross product|^2"),
     "tdist": ("operand", "signed distances and projections"),
     "w": ("fixed_operand", "foot weights and ratios, in [0, 1]"),
+    "cr": ("operand", "collision: facet edges and vertex offsets (any surface vertex to any facet)"),
+    "cl2": ("operand", "collision: squared facet length (2D), cross product, dot products, projections"),
+    "cl4": ("operand", "collision (3D): squared cross product and weight numerators"),
+    "cinv": ("operand", "collision (2D): 1 / facet length"),
+    "cinv2": ("operand", "collision (3D): 1 / |cross product|"),
+    "cinv4": ("operand", "collision (3D): 1 / |cross product|^2"),
+    "cdist": ("operand", "collision: signed distances to the facet and projections along it"),
     "fmag2": ("operand", "friction: squared tangential force"),
     "finv": ("operand", "friction: 1 / |tangential force|"),
 }
@@ -57,6 +64,7 @@ ALIASES = {"c12": "c2"}
 # constants: fitted to their own value
 CONSTANTS = {"L": "l", "k1": None, "c1": None, "c1a": None, "eps": None, "topo_K": None, "topo_C": None,
              "floor_K": None, "floor_C": None, "floor_kf": None, "mu": None, "inv_mass": None, "g": None,
+             "coll_h": None, "coll_K": None, "coll_C": None, "coll_kf": None,
              "load": "facc"}
 
 

@@ -72,14 +72,20 @@ class RtlGate:
     empty = False
     size = 1
 
-    def __init__(self, ar: "PipeArith", cond: PBool):
-        self.ar, self.cond = ar, cond
+    def __init__(self, ar: "PipeArith", cond: PBool, parent: "RtlGate | None" = None):
+        self.ar, self.cond, self.parent = ar, cond, parent
 
     def take(self, v: PV) -> PV:
         return PV(v.sig, v.q, v.stage, self.cond)
 
     def gate(self, cond: PBool) -> "RtlGate":
-        return RtlGate(self.ar, self.ar._bool(lambda a, b: a & b, self.cond, cond))
+        return RtlGate(self.ar, self.ar._bool(lambda a, b: a & b, self.cond, cond), self)
+
+    def lift(self, v: PV) -> PV:
+        """Zero where this gate is closed; the result lives in the enclosing gate (as Gate.lift)."""
+        zero = self.ar.zeros(v.q, 1)
+        out = self.ar.select(self.cond, PV(v.sig, v.q, v.stage, None), zero)
+        return PV(out.sig, out.q, out.stage, self.parent.cond if self.parent is not None else None)
 
     def expand(self, v: PV) -> PV:
         zero = self.ar.zeros(v.q, 1)

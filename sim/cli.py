@@ -17,6 +17,16 @@ class UsageError(Exception):
     """A problem with the user's input; printed as one line, exit code 2."""
 
 
+def _positive_float(text: str) -> float:
+    try:
+        val = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+    if not (val > 0 and np.isfinite(val)):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text}")
+    return val
+
+
 def _positive_int(text: str) -> int:
     try:
         val = int(text)
@@ -89,11 +99,7 @@ def cmd_simulate(args) -> int:
 def cmd_verilog(args) -> int:
     """Emit the scene's specialised core as Verilog plus manifest.json."""
     from hw import emit
-    from hw.bittrue import BitTrue
-    sys_ = _load_system(args.scene)
-    print(f"{sys_.name}: range analysis and formats (preset {args.preset})", flush=True)
-    with np.errstate(over="ignore", invalid="ignore"):
-        bt = BitTrue(sys_, args.preset)
+    bt = _hardware_model(args)
     man = emit.write(bt, args.out, lanes=args.lanes, node_lanes=args.node_lanes)
     cps = man["cycles_per_step"]
     print(f"wrote {args.out}/{man['verilog']} ({len(man['verilog_modules'])} modules) and manifest.json")
@@ -104,19 +110,30 @@ def cmd_verilog(args) -> int:
     return 0
 
 
+def _hardware_model(args):
+    """The bit-true model (formats) of the scene a hardware command builds: the scene, or with --full its
+    full-featured variant (every optional unit)."""
+    from hw import emit
+    from hw.bittrue import BitTrue
+    sys_ = _load_system(args.scene)
+    if args.full:
+        sys_ = emit.full_featured(sys_)
+    print(f"{sys_.name}: range analysis and formats (preset {args.preset})", flush=True)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return BitTrue(sys_, args.preset)
+
+
 def cmd_synth(args) -> int:
     """Synthesise the scene's core for an ECP5 (Yosys + nextpnr from PyPI): resources and Fmax."""
     from hw import emit
-    from hw.bittrue import BitTrue
     from sim.synth import synthesize
-    sys_ = _load_system(args.scene)
     out = Path(args.out)
-    print(f"{sys_.name}: range analysis and formats (preset {args.preset})", flush=True)
-    with np.errstate(over="ignore", invalid="ignore"):
-        bt = BitTrue(sys_, args.preset)
+    bt = _hardware_model(args)
     man = emit.write(bt, out, lanes=args.lanes, node_lanes=args.node_lanes)
     r = synthesize(out / man["verilog"], man["top"], out, device=args.device, clock_mhz=args.clock_mhz,
-                   progress=True)
+                   progress=True, place_and_route=args.pnr)
+    r.update(scene=man["scene"], preset=man["preset"], full_featured=args.full, lanes=man["lanes"],
+             elements=man["elements"], nodes=man["nodes"], units_present=[u["unit"] for u in man["units_present"]])
     cps = man["cycles_per_step"]["value"]
     r["cycles_per_step"] = cps
     if r.get("fmax_mhz"):
@@ -124,8 +141,10 @@ def cmd_synth(args) -> int:
         r["modelled_element_updates_per_s"] = r["modelled_steps_per_s"] * man["elements"]
     (out / "synth.json").write_text(json.dumps(r, indent=2, default=str))
     print(f"wrote {out}/synth.json, report.md, {man['verilog']}, manifest.json")
+    timing = (f"Fmax {r['fmax_mhz']} MHz (constraint {args.clock_mhz} MHz, {'met' if r['timing_met'] else 'NOT met'})"
+              if args.pnr else "no place and route (--no-pnr): no Fmax")
     print(f"  {r['luts']} LUTs, {r['flip_flops']} FFs, {r['mult18x18']} 18x18 multipliers, {r['block_rams']} block RAMs; "
-          f"Fmax {r['fmax_mhz']} MHz (constraint {args.clock_mhz} MHz, {'met' if r['timing_met'] else 'NOT met'})")
+          + timing)
     if r.get("fmax_mhz"):
         print(f"  {cps} cycles per step -> {r['modelled_steps_per_s']:.0f} steps/s modelled at Fmax")
     return 0
@@ -239,8 +258,18 @@ def cmd_run(args) -> int:
 def cmd_report(args) -> int:
     from sim import report
     sys_ = _load_system(args.scene)
+    clock, source = args.clock_mhz, "assumed (--clock-mhz)"
+    if args.synth is not None:
+        try:
+            fmax = json.loads(Path(args.synth).read_text())["fmax_mhz"]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise UsageError(f"--synth {args.synth}: not a synth.json of `rheo synth` ({exc})") from None
+        if not fmax:
+            raise UsageError(f"--synth {args.synth}: it holds no Fmax")
+        clock, source = float(fmax), f"measured Fmax ({args.synth})"
     with np.errstate(over="ignore", invalid="ignore"):
-        summary = report.build(sys_, args.out, presets=args.presets, log=lambda m: print(f"  {m}", flush=True))
+        summary = report.build(sys_, args.out, presets=args.presets, log=lambda m: print(f"  {m}", flush=True),
+                               clock_mhz=clock, clock_source=source)
     print(f"wrote {args.out}/error.csv, summary.json, error_vs_time.png, cost_vs_accuracy.png")
     for preset, q in summary["quantisation"].items():
         print(f"  quantisation {preset:7s}: " + (f"max {q['max_relative']:.2e} of the object size, "
@@ -249,6 +278,12 @@ def cmd_report(args) -> int:
         if isinstance(d, dict):
             print(f"  discretisation {label:4s}: " + (f"max {d['max_relative']:.2e} of the object size"
                   if "max_relative" in d else "diverged"))
+    rt, fp = summary["run_time_per_simulated_second"], summary["fpga"]
+    print(f"  wall seconds per simulated second: golden {rt['golden']:.3g}" + "".join(
+        f", bit-true {p} {rt['fixed-' + p]:.3g}" for p in fp["cycles_per_step"]))
+    for p, c in fp["cycles_per_step"].items():
+        print(f"  FPGA {p:7s}: {c} cycles/step at {fp['clock_mhz']:g} MHz ({fp['clock_source']}): "
+              f"{rt['fpga-' + p]:.3g} s per simulated second")
     return 0
 
 
@@ -291,6 +326,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("scene", help="built-in scene name or path to a scene .toml")
     s.add_argument("--out", required=True, metavar="DIR", help="output directory")
     s.add_argument("--preset", default="wide", choices=PRESETS, help="number-format preset (default: wide)")
+    s.add_argument("--full", action="store_true",
+                   help="every optional unit elaborated (what specialisation saves; see hw/emit.py full_featured)")
     _lane_args(s)
     s.set_defaults(func=cmd_verilog)
 
@@ -298,8 +335,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("scene", help="built-in scene name or path to a scene .toml")
     s.add_argument("--out", required=True, metavar="DIR", help="output directory")
     s.add_argument("--device", default="ecp5-85k", help="ecp5-85k (default), ecp5-45k, ecp5-25k, ecp5-12k")
-    s.add_argument("--clock-mhz", type=float, default=100.0, help="clock constraint (default 100 MHz)")
-    s.add_argument("--preset", default="wide", choices=PRESETS, help="number-format preset (default: wide)")
+    s.add_argument("--clock-mhz", type=_positive_float, default=100.0, help="clock constraint (default 100 MHz)")
+    s.add_argument("--preset", default="narrow", choices=PRESETS,
+                   help="number-format preset (default: narrow, the one whose products fit 18x18 multipliers)")
+    s.add_argument("--full", action="store_true",
+                   help="every optional unit elaborated (what specialisation saves; see hw/emit.py full_featured)")
+    s.add_argument("--no-pnr", dest="pnr", action="store_false",
+                   help="Yosys only: resources in minutes, no place and route and no Fmax")
     _lane_args(s)
     s.set_defaults(func=cmd_synth)
 
@@ -319,7 +361,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="print JSON")
     s.add_argument("--sizes", type=_positive_int, nargs="+", default=[1_000, 10_000, 100_000],
                    help="approximate element counts (default: 1000 10000 100000)")
-    s.add_argument("--seconds", type=float, default=1.0, help="minimum measuring time per size (default 1)")
+    s.add_argument("--seconds", type=_positive_float, default=1.0, help="minimum measuring time per size (default 1)")
     s.set_defaults(func=cmd_bench)
 
     from sim import stability_cmd
@@ -329,6 +371,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("scene", help="built-in scene name or path to a scene .toml")
     s.add_argument("--out", required=True, help="output directory")
     s.add_argument("--presets", nargs="+", choices=PRESETS, default=list(PRESETS), help="format presets")
+    s.add_argument("--clock-mhz", type=_positive_float, default=50.0,
+                   help="FPGA clock for the FPGA run time (default: 50 MHz, about the measured Fmax of narrow cores)")
+    s.add_argument("--synth", default=None, help="take the clock from this synth.json (rheo synth's measured Fmax)")
     s.set_defaults(func=cmd_report)
 
     s = sub.add_parser("run", help="the main job: simulate the default scene, render it and export it")

@@ -1,11 +1,15 @@
 """Error against run time: what accuracy each word width and each time step costs, for one scene.
 
 - Quantisation error: the bit-true model of every format preset against the golden model at the scene's
-  dt (max and RMS position error over nodes, absolute and relative to the object size), per frame.
+  dt (max and RMS position error over nodes, absolute and relative to the object size), per frame; and
+  each preset's sensitivity floor: the golden model with only its states rounded to the preset's grid
+  (hw/sensitivity.py). Where the floor is as high as the quantisation error, the scene itself (a
+  clamp of a or a contact switching a step earlier) parts the trajectories, not the datapath.
 - Discretisation error: the golden model at dt, 2 dt and 4 dt against a converged reference, the golden
   model at dt / 16 (dt / 4 when that would exceed `max_ref_steps` steps; the summary says which).
-- Run time per simulated second: golden and bit-true measured on this machine; the FPGA figure
-  appears once the hardware exists (cycles per step x clock).
+- Run time per simulated second: golden and bit-true measured on this machine; the FPGA core of each
+  preset from its schedule (cycles per step of the elaborated core, hw/core.py `schedule`) at a clock
+  (`clock_mhz`: an assumption unless taken from `rheo synth`'s measured Fmax; the summary says which).
 Writes DIR/error.csv, DIR/summary.json, DIR/error_vs_time.png and DIR/cost_vs_accuracy.png.
 """
 from __future__ import annotations
@@ -33,10 +37,15 @@ def _errors(x, ref, size):
     return diff.max(1), np.sqrt((diff ** 2).mean(1)), diff.max(1) / size
 
 
+DEFAULT_CLOCK_MHZ = 50.0     # about the Fmax rheo synth measures for narrow 2D cores on an ECP5-85k
+
+
 def build(sys: System, out_dir, presets=("narrow", "medium", "wide"), max_ref_steps=2_000_000,
-          log=print) -> dict:
+          log=print, clock_mhz: float = DEFAULT_CLOCK_MHZ, clock_source: str = "assumed") -> dict:
     from hw.bittrue import simulate_fixed
+    from hw.core import CoreConfig, schedule
     from hw.datapath import NotSupported
+    from hw.sensitivity import rounded_golden
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     size = float(np.ptp(sys.x0, axis=0).max())
@@ -45,7 +54,8 @@ def build(sys: System, out_dir, presets=("narrow", "medium", "wide"), max_ref_st
     T = n * sys.dt
     sysn = dataclasses.replace(sys, n_steps=n)
     summary = {"scene": sys.name, "dt": sys.dt, "duration": T, "object_size_m": size, "frames": n // every + 1,
-               "quantisation": {}, "discretisation": {}, "run_time_per_simulated_second": {}}
+               "quantisation": {}, "discretisation": {}, "run_time_per_simulated_second": {},
+               "fpga": {"clock_mhz": clock_mhz, "clock_source": clock_source, "cycles_per_step": {}}}
     cols = {}
 
     log(f"golden at dt = {sys.dt:g} s ({n} steps)")
@@ -65,10 +75,17 @@ def build(sys: System, out_dir, presets=("narrow", "medium", "wide"), max_ref_st
             continue
         mx, rms, rel = _errors(run.x, gold.x, size)
         cols[f"quant_max_m_{preset}"], cols[f"quant_rms_m_{preset}"], cols[f"quant_max_rel_{preset}"] = mx, rms, rel
+        floor = _errors(rounded_golden(sysn, bt.formats, bt.units, every=every), gold.x, size)[2]
+        cols[f"floor_max_rel_{preset}"] = floor
         summary["quantisation"][preset] = {"max_m": float(mx.max()), "rms_m": float(rms.max()),
-                                           "max_relative": float(rel.max()), "saturations": dict(bt.sat), "constant_saturations": dict(bt.const_sat),
+                                           "max_relative": float(rel.max()),
+                                           "sensitivity_floor_relative": float(floor.max()),
+                                           "saturations": dict(bt.sat), "constant_saturations": dict(bt.const_sat),
                                            "wall_s": wall}
         summary["run_time_per_simulated_second"][f"fixed-{preset}"] = wall / T
+        cycles = schedule(CoreConfig.of(bt))["cycles_per_step"]
+        summary["fpga"]["cycles_per_step"][preset] = cycles
+        summary["run_time_per_simulated_second"][f"fpga-{preset}"] = cycles / (clock_mhz * 1e6 * sys.dt)
 
     factor_ref = 16 if n * 16 <= max_ref_steps else 4
     log(f"golden reference at dt / {factor_ref}")
@@ -86,8 +103,6 @@ def build(sys: System, out_dir, presets=("narrow", "medium", "wide"), max_ref_st
         summary["discretisation"][label] = {"dt": sys.dt * factor, "max_m": float(mx.max()),
                                             "max_relative": float(rel.max()),
                                             "run_time_per_simulated_second": run.wall_seconds / T}
-    summary["run_time_per_simulated_second"]["fpga"] = None
-    summary["fpga_note"] = "hardware backend not built yet: cycles per step x clock will appear here"
 
     with open(out / "error.csv", "w", newline="") as f:
         w = csv.writer(f)
@@ -107,11 +122,14 @@ def _plots(out: Path, cols: dict, summary: dict) -> None:
     t = cols["t"]
     fig, ax = plt.subplots(figsize=(8, 4.5))
     floor = 1e-11          # exact zeros (before anything moves) are drawn at the bottom of the plot
-    for k, style in (("quant_max_rel_", "-"), ("disc_max_rel_", "--")):
-        for key in [c for c in cols if c.startswith(k)]:
-            label = ("quantisation, " if k.startswith("quant") else "discretisation, ") + key[len(k):]
-            ax.semilogy(t, np.maximum(cols[key], floor), style, label=label)
-    ax.axhline(1e-4, color="grey", lw=0.8, ls=":", label="budget 1e-4 (wide)")
+    for key in [c for c in cols if c.startswith("quant_max_rel_")]:
+        preset = key[len("quant_max_rel_"):]
+        line, = ax.semilogy(t, np.maximum(cols[key], floor), "-", label=f"quantisation, {preset}")
+        ax.semilogy(t, np.maximum(cols[f"floor_max_rel_{preset}"], floor), ":", color=line.get_color(), lw=1,
+                    label=f"sensitivity floor, {preset} (golden, states rounded)")
+    for key in [c for c in cols if c.startswith("disc_max_rel_")]:
+        ax.semilogy(t, np.maximum(cols[key], floor), "--", label="discretisation, " + key[len("disc_max_rel_"):])
+    ax.axhline(1e-4, color="grey", lw=0.8, ls="-.", label="budget 1e-4 (wide)")
     ax.set_ylim(bottom=floor)
     _finish(fig, ax, "simulated time [s]", f"{summary['scene']}: error against simulated time",
             out / "error_vs_time.png")
@@ -119,9 +137,13 @@ def _plots(out: Path, cols: dict, summary: dict) -> None:
     fig, ax = plt.subplots(figsize=(6, 4.5))
     floor = 1e-11
     rt = summary["run_time_per_simulated_second"]
+    clock = summary["fpga"]["clock_mhz"]
     for preset, q in summary["quantisation"].items():
         if "max_relative" in q:
-            ax.loglog(rt[f"fixed-{preset}"], max(q["max_relative"], floor), "o", label=f"bit-true {preset}")
+            err = max(q["max_relative"], floor)
+            line, = ax.loglog(rt[f"fixed-{preset}"], err, "o", label=f"bit-true {preset} (NumPy)")
+            ax.loglog(rt[f"fpga-{preset}"], err, "*", ms=11, color=line.get_color(),
+                      label=f"FPGA {preset} ({summary['fpga']['cycles_per_step'][preset]} cycles/step, {clock:g} MHz)")
     for label, d in summary["discretisation"].items():
         if isinstance(d, dict) and "max_relative" in d:
             ax.loglog(d["run_time_per_simulated_second"], max(d["max_relative"], floor), "s", label=f"golden {label}")

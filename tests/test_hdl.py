@@ -18,6 +18,7 @@ from hw.bittrue import BitTrue
 from sim.hdlsim import emit_core, run_job
 
 from conftest import bittrue
+from test_hw_core import active_collision_pairs
 
 ROOT = Path(__file__).resolve().parents[1]
 SIMULATORS = ["icarus", "verilator"]
@@ -28,6 +29,8 @@ def check(bt, simulator, start, frames, reset_after=0, lanes=1, node_lanes=1):
     st = bt.initial_state()
     for _ in range(start):
         bt.step(st)
+    if bt.params.collision is not None:       # the comparison must cover contacts, not only their absence
+        assert active_collision_pairs(bt, st) > 0, f"no contact at step {start}"
     bt.sat.clear()
     core_dir, man, drv = emit_core(bt, lanes, node_lanes)
     out = run_job(simulator, core_dir, drv, drv.load_words(st.X, st.U, st.A, st.FP, st.step), frames,
@@ -52,6 +55,17 @@ def test_scene_with_topology_floor_damper_and_gravity_is_bit_exact(simulator):
     bt = bittrue("gravity-2d-nonlinear", "wide")
     out = check(bt, simulator, start=3000, frames=[3, 5, 8])          # back-to-back runs of 3, 5, 8 steps
     assert out["wall_s"] > 0
+
+
+def test_3d_collisions_with_friction_are_bit_exact_on_verilator():
+    """A box resting on a pressed box: 30,524 vertex-triangle pairs a step, friction on the 1/sqrt unit."""
+    bt = bittrue("friction-3d-mu03", "wide")
+    check(bt, "verilator", start=1500, frames=[2, 3])
+
+
+def test_2d_collisions_with_friction_are_bit_exact_on_icarus():
+    bt = bittrue("friction-2d-mu03", "wide")
+    check(bt, "icarus", start=2000, frames=[1, 2])
 
 
 @pytest.mark.parametrize("simulator", SIMULATORS)

@@ -32,6 +32,13 @@ def test_report_orders_presets_and_time_steps(tmp_path):
     assert 1.5 < d["4dt"] / d["2dt"] < 2.5                    # ... about linearly
     rt = s["run_time_per_simulated_second"]
     assert rt["golden"] > 0 and rt["fixed-wide"] > 0
+    # the FPGA: every element and every node take a clock of one lane, at the stated clock
+    cyc = s["fpga"]["cycles_per_step"]["wide"]
+    assert cyc >= 134 + 55 and s["fpga"]["clock_mhz"] == 50.0
+    assert abs(rt["fpga-wide"] - cyc / (50e6 * s["dt"])) <= 1e-12 * rt["fpga-wide"]
+    # the sensitivity floor (golden with rounded states) is part of what the bit-true model adds
+    floor = s["quantisation"]["wide"]["sensitivity_floor_relative"]
+    assert 0 < floor <= q["wide"], (floor, q["wide"])
     with open(out / "error.csv") as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == s["frames"]
