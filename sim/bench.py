@@ -1,11 +1,18 @@
-"""Throughput benchmark of a backend on generated meshes of about 1e3, 1e4 and 1e5 elements.
+"""Throughput benchmark of a backend on generated meshes of about 1e3, 1e4 and 1e5 elements, or on a scene.
 
 The benchmark scene is a square of rheological material (nonlinear damper) under gravity with its
 bottom row pinned: element updates and node integration, the work every scene does. Figures are
 measured on this machine: steps/s and element-updates/s (elements x steps / wall time).
+
+The FPGA (`bench_fpga`): cycles per step measured by running the emitted Verilog in an HDL simulator
+(Verilator or Icarus, through cocotb) and checked bit for bit against the bit-true model; the achieved
+Fmax from place and route (`sim/synth.py`, cached next to the core's build by the Verilog's hash), or a
+clock the user states; modelled steps/s = Fmax / cycles per step. The golden model's steps/s on the same
+scene are measured in the same run, on this machine, for the ratio.
 """
 from __future__ import annotations
 
+import json
 import math
 import time
 
@@ -30,9 +37,10 @@ def square_system(n_elements: int) -> System:
                                np.full(E, mat["a_max"]), mat["a0"] * l0, np.full(E, mat["c_min"]),
                                np.full(E, mat["c_max"]), np.full(E, mat["f1"]), np.full(E, mat["f2"]))
     pinned = m.nodes[:, 1] == 0.0
-    return System(f"bench-{E}", 2, m.nodes, np.zeros_like(m.nodes), np.full(N, 1e-3), pinned, m.edges,
+    # 50 steps: what a range analysis of its formats runs (the benchmarks step it for as long as they measure)
+    return System(f"square-{E}", 2, m.nodes, np.zeros_like(m.nodes), np.full(N, 1e-3), pinned, m.edges,
                   np.full(E, mat["a0"]), elem, m.cells, np.zeros(N, np.int64), np.zeros(len(m.cells), np.int64),
-                  ["square"], np.array([0.0, -9.81]), 1e-5, 0, 1)
+                  ["square"], np.array([0.0, -9.81]), 1e-5, 50, 1)
 
 
 def _timed(stepper, st, sys: System, min_seconds: float, **labels) -> dict:
@@ -59,14 +67,77 @@ def bench_fixed(n_elements: int, min_seconds: float = 1.0, preset: str = "wide")
     """The bit-true model on the same mesh (formats from a short range analysis of its first steps)."""
     from hw.bittrue import BitTrue
     sys = square_system(n_elements)
-    sys.n_steps = 50
-    bt = BitTrue(sys, preset, range_steps=50)
+    bt = BitTrue(sys, preset)
     return _timed(bt, bt.initial_state(), sys, min_seconds, backend="fixed", preset=preset)
 
 
-def run(backend: str, sizes=SIZES, min_seconds: float = 1.0) -> list[dict]:
+def bench_fpga(sys: System, preset: str = "narrow", lanes: int = 1, node_lanes: int = 1,
+               simulator: str = "verilator", steps: int = 2, fmax_mhz: float | None = None,
+               device: str = "ecp5-85k", min_seconds: float = 1.0, range_steps: int | None = None,
+               log=None) -> dict:
+    """Modelled FPGA throughput of `sys`'s specialised core and the golden model's measured throughput.
+
+    Cycles per step come from the HDL simulation (the core's CYCLES register over `steps` steps from the
+    initial state, whose read-back must equal the bit-true model's). With `fmax_mhz` None the core is
+    placed and routed for `device` (once per Verilog: DIR/synth-DEVICE/synth.json beside the build).
+    """
+    from hw.bittrue import BitTrue
+    from .hdlsim import emit_core, run_job
+    from .synth import synthesize
+    say = log or (lambda m: None)
+    say(f"{sys.name}: formats (preset {preset})")
+    bt = BitTrue(sys, preset, range_steps=range_steps)
+    core_dir, man, drv = emit_core(bt, lanes, node_lanes)
+    say(f"{simulator}: {steps} steps of the core in {core_dir}")
+    st = bt.initial_state()
+    out = run_job(simulator, core_dir, drv, drv.load_words(st.X, st.U, st.A, st.FP, 0), [steps])
+    for _ in range(steps):
+        bt.step(st)
+    X, U, A = out["frames"][0][:3]
+    if not (all(np.array_equal(a, b) for a, b in zip(X + U, st.X + st.U)) and np.array_equal(A, st.A)):
+        raise RuntimeError(f"{simulator}: the core's state after {steps} steps differs from the bit-true model")
+    cycles = out["cycles"][0] / steps
+    row = dict(backend="fpga", scene=sys.name, elements=sys.n_elements, nodes=sys.n_nodes, preset=preset,
+               lanes=lanes, node_lanes=node_lanes, simulator=simulator, cycles_per_step=cycles,
+               cycles_per_step_schedule=man["cycles_per_step"]["value"],
+               simulator_cycles_per_s=out["cycles"][0] / max(out["wall_s"], 1e-9), core_dir=str(core_dir))
+    if fmax_mhz is None:
+        synth_dir = core_dir / f"synth-{device}"
+        cached = synth_dir / "synth.json"
+        if cached.is_file():
+            say(f"place and route: cached {cached}")
+            res = json.loads(cached.read_text())
+        else:
+            say(f"place and route for {device} (Yosys + nextpnr; tens of minutes for large cores)")
+            res = synthesize(core_dir / f"{man['top']}.v", man["top"], synth_dir, device=device,
+                             progress=log is not None)
+        fmax_mhz, source = res["fmax_mhz"], f"measured: nextpnr-ecp5 on {device} ({synth_dir})"
+        row["resources"] = {k: res[k] for k in ("luts", "flip_flops", "mult18x18", "block_rams")}
+    else:
+        source = "stated (--fmax-mhz)"
+    row.update(fmax_mhz=fmax_mhz, fmax_source=source, steps_per_s=fmax_mhz * 1e6 / cycles,
+               element_updates_per_s=fmax_mhz * 1e6 / cycles * sys.n_elements)
+    say("golden model on the same scene")
+    g = _timed(Golden(sys), State.initial(sys), sys, min_seconds, backend="golden")
+    row.update(golden_steps_per_s=g["steps_per_s"], ratio_to_golden=row["steps_per_s"] / g["steps_per_s"])
+    return row
+
+
+def run(backend: str, sizes=SIZES, min_seconds: float = 1.0, scene: System | None = None, **fpga) -> list[dict]:
+    """Rows of figures, one per mesh size, or one for `scene` (golden and fpga backends)."""
+    if scene is not None:
+        if backend == "golden":
+            return [_timed(Golden(scene), State.initial(scene), scene, min_seconds, backend="golden", scene=scene.name)]
+        if backend == "fpga":
+            return [bench_fpga(scene, min_seconds=min_seconds, **fpga)]
+        raise ValueError(f"backend '{backend}' benchmarks generated meshes only (no scene)")
     if backend == "golden":
         return [bench_golden(n, min_seconds) for n in sizes]
+    if backend == "fpga":
+        rows = []
+        for n in sizes:
+            rows.append(bench_fpga(square_system(n), min_seconds=min_seconds, **fpga))
+        return rows
     if backend == "fixed":
         rows = []
         for n in sizes:
@@ -75,4 +146,4 @@ def run(backend: str, sizes=SIZES, min_seconds: float = 1.0) -> list[dict]:
             f["ratio_to_golden"] = f["steps_per_s"] / g["steps_per_s"]
             rows.append(f)
         return rows
-    raise ValueError(f"backend '{backend}' has no benchmark (available: golden, fixed)")
+    raise ValueError(f"backend '{backend}' has no benchmark (available: golden, fixed, fpga)")

@@ -10,6 +10,7 @@ import numpy as np
 
 DEFAULT_SCENE = "press-2d-rheological"
 BACKENDS = ("golden", "fixed", "amaranth", "icarus", "verilator")
+BENCH_BACKENDS = ("golden", "fixed", "fpga")
 PRESETS = ("narrow", "medium", "wide")
 
 
@@ -38,7 +39,18 @@ def _positive_int(text: str) -> int:
 
 
 def _load_system(ref: str):
+    """A built-in scene by name, a scene file by path, or `square:N`: the benchmark's generated square of
+    about N elements (sim/bench.py)."""
     from golden.scene import compile_scene, load_scene
+    if ref.startswith("square:"):
+        from sim import bench
+        try:
+            n = int(ref[len("square:"):])
+        except ValueError:
+            n = 0
+        if not 10 <= n <= 10_000_000:
+            raise UsageError(f"'{ref}': square:N takes a whole number of elements N in 10..10000000")
+        return bench.square_system(n)
     return compile_scene(load_scene(ref))
 
 
@@ -166,11 +178,31 @@ def cmd_export(args) -> int:
 
 def cmd_bench(args) -> int:
     from sim import bench
-    if args.backend not in BACKENDS:
-        raise UsageError(f"backend '{args.backend}' is not available (available: {', '.join(BACKENDS)})")
-    rows = bench.run(args.backend, sizes=args.sizes, min_seconds=args.seconds)
+    if args.backend not in BENCH_BACKENDS:
+        raise UsageError(f"backend '{args.backend}' has no benchmark (available: {', '.join(BENCH_BACKENDS)})")
+    scene = _load_system(args.scene) if args.scene else None
+    fpga = {}
+    if args.backend == "fpga":
+        fpga = dict(preset=args.preset or "narrow", lanes=args.lanes, node_lanes=args.node_lanes,
+                    simulator=args.simulator, fmax_mhz=args.fmax_mhz, device=args.device,
+                    log=None if args.json else (lambda m: print(f"  {m}", flush=True)))
+    elif any(v is not None for v in (args.preset, args.fmax_mhz)) or args.lanes != 1 or args.node_lanes != 1:
+        raise UsageError("--preset, --lanes, --node-lanes and --fmax-mhz belong to --backend fpga")
+    sizes = args.sizes or ([10_000] if args.backend == "fpga" else list(bench.SIZES))
+    try:
+        rows = bench.run(args.backend, sizes=sizes, min_seconds=args.seconds, scene=scene, **fpga)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     if args.json:
         print(json.dumps({"backend": args.backend, "results": rows}, indent=2))
+    elif args.backend == "fpga":
+        for r in rows:
+            print(f"{r['scene']}: {r['elements']} elements, {r['nodes']} nodes, preset {r['preset']}, "
+                  f"P = {r['lanes']}, Q = {r['node_lanes']}: {r['cycles_per_step']:.0f} cycles/step ({r['simulator']})")
+            print(f"  Fmax {r['fmax_mhz']:.1f} MHz ({r['fmax_source']}) -> {r['steps_per_s']:.0f} steps/s, "
+                  f"{r['element_updates_per_s']:.3e} element-updates/s")
+            print(f"  golden model on this machine: {r['golden_steps_per_s']:.1f} steps/s; "
+                  f"FPGA / golden = {r['ratio_to_golden']:.1f}x")
     else:
         print(f"{'elements':>9} {'nodes':>8} {'steps/s':>10} {'element-updates/s':>18}")
         for r in rows:
@@ -359,9 +391,17 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("bench", help="measure steps/s and element-updates/s on generated meshes")
     s.add_argument("--backend", default="golden", help="model to measure (default: golden)")
     s.add_argument("--json", action="store_true", help="print JSON")
-    s.add_argument("--sizes", type=_positive_int, nargs="+", default=[1_000, 10_000, 100_000],
-                   help="approximate element counts (default: 1000 10000 100000)")
+    s.add_argument("--sizes", type=_positive_int, nargs="+",
+                   help="approximate element counts of generated squares (default: 1000 10000 100000; fpga: 10000)")
+    s.add_argument("--scene", help="measure this scene instead of generated squares (golden, fpga)")
     s.add_argument("--seconds", type=_positive_float, default=1.0, help="minimum measuring time per size (default 1)")
+    s.add_argument("--preset", choices=PRESETS, help="fpga: number-format preset (default narrow)")
+    _lane_args(s)
+    s.add_argument("--simulator", choices=["verilator", "icarus"], default="verilator",
+                   help="fpga: HDL simulator that measures cycles per step (default verilator)")
+    s.add_argument("--fmax-mhz", type=_positive_float,
+                   help="fpga: clock to model with, instead of placing and routing the core (minutes to an hour)")
+    s.add_argument("--device", default="ecp5-85k", help="fpga: device for place and route (default ecp5-85k)")
     s.set_defaults(func=cmd_bench)
 
     from sim import stability_cmd

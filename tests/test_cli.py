@@ -167,6 +167,18 @@ def test_bench_unknown_backend():
     one_line_error(rheo("bench", "--backend", "nope", "--sizes", 200, "--seconds", 0.1), "'nope'")
 
 
+def test_bench_hardware_options_belong_to_fpga():
+    one_line_error(rheo("bench", "--backend", "golden", "--lanes", 2, "--sizes", 200, "--seconds", 0.1),
+                   "--backend fpga")
+
+
+def test_generated_square_as_a_scene():
+    proc = ok(rheo("bench", "--backend", "golden", "--scene", "square:300", "--json", "--seconds", 0.1))
+    r = json.loads(proc.stdout)["results"][0]
+    assert r["scene"].startswith("square-") and 200 <= r["elements"] <= 400
+    one_line_error(rheo("verilog", "square:abc", "--out", "unused"), "square:N")
+
+
 # ---------------------------------------------------------------- --help
 
 def _subcommands() -> list[str]:

@@ -140,3 +140,23 @@ def test_icarus_backend_writes_the_same_run_file_as_the_fixed_backend(tmp_path):
         outs[backend] = np.load(out)
     for key in ("x_raw", "v_raw", "a_raw", "saturations", "x"):
         assert np.array_equal(outs["fixed"][key], outs["icarus"][key]), key
+
+
+def test_bench_fpga_measures_cycles_per_step_in_simulation():
+    """`rheo bench --backend fpga`: cycles per step from the simulated core's CYCLES register (equal to the
+    schedule), modelled steps/s at the stated clock, and the golden model measured on the same mesh."""
+    import json
+    r = subprocess.run([sys.executable, "-m", "sim.cli", "bench", "--backend", "fpga", "--sizes", "300",
+                        "--lanes", "2", "--node-lanes", "2", "--fmax-mhz", "50", "--seconds", "0.2", "--json"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=1800)
+    assert r.returncode == 0, r.stderr
+    row = json.loads(r.stdout)["results"][0]
+    E, N = row["elements"], row["nodes"]
+    assert row["simulator"] == "verilator" and row["lanes"] == 2 and row["node_lanes"] == 2
+    assert row["cycles_per_step"] == row["cycles_per_step_schedule"]
+    assert row["cycles_per_step"] >= -(-E // 2) + -(-N // 2)          # one element / node per lane and clock
+    assert row["steps_per_s"] == pytest.approx(50e6 / row["cycles_per_step"], rel=1e-12)
+    assert row["element_updates_per_s"] == pytest.approx(row["steps_per_s"] * E, rel=1e-12)
+    assert row["golden_steps_per_s"] > 0
+    assert row["ratio_to_golden"] == pytest.approx(row["steps_per_s"] / row["golden_steps_per_s"], rel=1e-12)
+    assert row["fmax_source"].startswith("stated")

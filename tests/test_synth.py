@@ -163,3 +163,17 @@ def test_design_that_does_not_fit(tmp_path):
     msg = str(e.value)
     assert "does not fit ecp5-25k" in msg
     assert "29 of 28 MULT18X18D" in msg
+
+
+def test_yosys_only_gives_resources_without_fmax(mac_verilog, mac_result, tmp_path):
+    """place_and_route=False: the same Yosys cell counts as the full flow, no nextpnr, no Fmax."""
+    _, full = mac_result
+    r = synthesize(mac_verilog, "mac_ram", tmp_path, device="ecp5-85k", clock_mhz=50.0, place_and_route=False)
+    assert r["place_and_route"] is False and r["fmax_mhz"] is None and r["timing_met"] is None
+    for k in ("luts", "flip_flops", "mult18x18", "block_rams", "carry_cells"):
+        assert r[k] == full[k], k
+    assert r["utilization"]["MULT18X18D"] == {"used": full["mult18x18"], "available": 156}
+    assert not (tmp_path / "nextpnr.log").exists() and r["wall_s"]["nextpnr"] is None
+    md = (tmp_path / "report.md").read_text()
+    assert "no place and route" in md and "MHz" not in md
+    assert json.loads((tmp_path / "synth.json").read_text()) == r
