@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .fixed import Saturations, Shape, add, mul, round_into
+from .fixed import Saturations, Shape, _round_owned_into, _shift_left, add, mul, round_into
 
 
 @dataclass
@@ -207,10 +207,16 @@ class FixedArith(_ArrayArith):
 
     def sum(self, terms, q):
         f = max(self.shape(t.q).f for t in terms)
-        s = 0
-        for t in terms:
-            s = s + (np.asarray(t.x, np.int64) << (f - self.shape(t.q).f))
-        return V(round_into(s, f, self.shape(q), self.sat, q), q)
+        parts = [_shift_left(t.x, f - self.shape(t.q).f) for t in terms]
+        if len(parts) == 1:
+            return V(round_into(parts[0], f, self.shape(q), self.sat, q), q)
+        s = parts[0] + parts[1]                  # a fresh array: the rest is added in place
+        for x in parts[2:]:
+            if np.shape(s) == np.broadcast_shapes(np.shape(s), np.shape(x)):
+                s += x
+            else:                                # x is the larger: broadcasting needs a new array
+                s = s + x
+        return V(_round_owned_into(s, f, self.shape(q), self.sat, q), q)
 
     def neg(self, a):
         return V(self.shape(a.q).saturate(-a.x, self.sat, a.q), a.q)
@@ -230,7 +236,7 @@ class FixedArith(_ArrayArith):
     def _aligned(self, a, b):
         fa, fb = self.shape(a.q).f, self.shape(b.q).f
         f = max(fa, fb)
-        return np.asarray(a.x, np.int64) << (f - fa), np.asarray(b.x, np.int64) << (f - fb)
+        return _shift_left(a.x, f - fa), _shift_left(b.x, f - fb)
 
     def le(self, a, b):
         x, y = self._aligned(a, b)
@@ -258,16 +264,7 @@ class FixedArith(_ArrayArith):
         for v, _ in parts:
             if self.shape(v.q).f > f:
                 raise ValueError(f"scatter into '{q}': '{v.q}' has a finer binary point")
-        idx = np.concatenate([np.broadcast_to(i, np.shape(i)) for _, i in parts])
-        val = np.concatenate([np.broadcast_to(np.asarray(v.x, np.int64) << (f - self.shape(v.q).f), np.shape(i))
-                              for v, i in parts])
-        return V(_bincount_int(idx, val, n), q)
-
-
-def _bincount_int(idx, w, n):
-    """Exact integer bincount: split the weights into 26-bit halves so float64 sums stay exact."""
-    lo = w & ((1 << 26) - 1)
-    hi = w >> 26
-    s_lo = np.rint(np.bincount(idx, weights=lo.astype(float), minlength=n)).astype(np.int64)
-    s_hi = np.rint(np.bincount(idx, weights=hi.astype(float), minlength=n)).astype(np.int64)
-    return (s_hi << 26) + s_lo
+        out = np.zeros(n, np.int64)
+        for v, i in parts:       # unbuffered int64 adds (np.add.at): exact, repeated indices included
+            np.add.at(out, i, np.broadcast_to(_shift_left(v.x, f - self.shape(v.q).f), np.shape(i)))
+        return V(out, q)

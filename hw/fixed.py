@@ -122,9 +122,32 @@ def shift_round(raw: np.ndarray, shift: int) -> np.ndarray:
     return raw
 
 
+def _shift_round_owned(raw, shift: int):
+    """shift_round(raw, shift), in place when raw is an array the caller owns (a fresh intermediate)."""
+    if shift > 62:
+        return np.zeros_like(raw)
+    if shift > 0:
+        raw += 1 << (shift - 1)
+        raw >>= shift
+    elif shift < 0:
+        raw <<= -shift
+    return raw
+
+
+def _shift_left(raw, shift: int) -> np.ndarray:
+    """raw << shift (shift >= 0) as int64, without a copy for shift 0: exact, to a finer binary point."""
+    raw = np.asarray(raw, np.int64)
+    return raw << shift if shift else raw
+
+
 def round_into(raw, src_f: int, dst: Shape, sat=None, name="") -> np.ndarray:
     """A raw value with src_f fraction bits, rounded to nearest into dst and saturated."""
     return dst.saturate(shift_round(np.asarray(raw, np.int64), src_f - dst.f), sat, name)
+
+
+def _round_owned_into(raw, src_f: int, dst: Shape, sat=None, name="") -> np.ndarray:
+    """round_into for a fresh int64 intermediate the caller owns (rounded in place)."""
+    return dst.saturate(_shift_round_owned(raw, src_f - dst.f), sat, name)
 
 
 def rescale(raw, src: Shape, dst: Shape, sat=None, name="") -> np.ndarray:
@@ -136,12 +159,11 @@ def mul(a, sa: Shape, b, sb: Shape, dst: Shape, sat=None, name="") -> np.ndarray
     """Exact product of two operands, rounded and saturated into dst."""
     if sa.width > MAX_OPERAND_BITS or sb.width > MAX_OPERAND_BITS:
         raise ValueError(f"multiplier operands {sa} x {sb} exceed {MAX_OPERAND_BITS} bits")
-    return round_into(np.asarray(a, np.int64) * np.asarray(b, np.int64), sa.f + sb.f, dst, sat, name)
+    return _round_owned_into(np.asarray(a, np.int64) * np.asarray(b, np.int64), sa.f + sb.f, dst, sat, name)
 
 
 def add(a, sa: Shape, b, sb: Shape, dst: Shape, sat=None, name="", subtract=False) -> np.ndarray:
     """a + b (or a - b), exact at the finer binary point, then rounded and saturated into dst."""
     f = max(sa.f, sb.f)
-    a = np.asarray(a, np.int64) << (f - sa.f)
-    b = np.asarray(b, np.int64) << (f - sb.f)
-    return round_into(a - b if subtract else a + b, f, dst, sat, name)
+    a, b = _shift_left(a, f - sa.f), _shift_left(b, f - sb.f)
+    return _round_owned_into(a - b if subtract else a + b, f, dst, sat, name)

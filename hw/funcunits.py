@@ -6,8 +6,9 @@ and every clamp of a value that does not fit its format is a saturation counted 
 object under the unit's name. Constants (tables, scale factors) are computed once at construction, in
 float64 or exact integer arithmetic; they are what the hardware's ROMs and constant operands hold.
 
-Products wider than 62 bits (the Newton steps of a 32-bit-output Rsqrt) are formed exactly from 24-bit
-limbs (`_mul_shift_round`): the result is the exactly rounded product, as from a wide hardware multiplier.
+Products wider than 62 bits (the Newton steps of a 32-bit-output Rsqrt) are formed exactly from two
+partial products of one operand split in two, or from 24-bit limbs (`_mul_shift_round`): the result is the
+exactly rounded product, as from a wide hardware multiplier.
 """
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from fractions import Fraction
 
 import numpy as np
 
-from .fixed import Saturations, Shape, shift_round
+from .fixed import Saturations, Shape, _shift_round_owned, shift_round
 
 MAX_UNIT_WIDTH = 32          # widest input/output format of a function unit
 _LIMB = 24
@@ -25,18 +26,32 @@ _LIMB_MASK = (1 << _LIMB) - 1
 
 # ---------------------------------------------------------------------------------------------- helpers
 
-def _mul_shift_round(a: np.ndarray, b: np.ndarray, s: int, product_bits: int) -> np.ndarray:
+def _mul_shift_round(a: np.ndarray, b: np.ndarray, s: int, product_bits: int, b_bits: int = 48) -> np.ndarray:
     """round(a * b / 2^s), round to nearest ties up, exact, for non-negative int64 a, b < 2^48 and s >= 0.
 
-    `product_bits` is a static bound on the bit length of a * b (from the operands' formats). Up to 62 bits
-    the product is formed directly in int64; wider products are split into 24-bit limbs
-    a = a1 2^24 + a0, b = b1 2^24 + b0 whose partial products (< 2^49) are summed exactly. The caller
-    guarantees that the rounded result fits in 62 bits.
+    `product_bits` is a static bound on the bit length of a * b and `b_bits` one on b's (from the operands'
+    formats). Up to 62 bits the product is formed directly in int64. A wider product is, when some split
+    point k <= s keeps both partial products within 61 bits (k >= product_bits - 61, k <= 61 - b_bits,
+    s <= 61), formed from a = ah 2^k + al (al = a mod 2^k):
+        floor((a b + 2^(s-1)) / 2^s) = floor((ah b + floor((al b + 2^(s-1)) / 2^k)) / 2^(s-k)),
+    exact as floor((n + x) / m) = floor((n + floor(x)) / m) for integers n and m >= 1 and real x. Otherwise
+    both operands are split into 24-bit limbs a = a1 2^24 + a0, b = b1 2^24 + b0 whose partial products
+    (< 2^49) are summed exactly. The caller guarantees that the rounded result fits in 62 bits.
     """
     if s < 0:
         raise ValueError("shift must be non-negative")
     if product_bits <= 62 and s <= 62:
         return shift_round(a * b, s)
+    k_lo, k_hi = max(product_bits - 61, 1), min(61 - b_bits, s)
+    if k_lo <= k_hi and s <= 61:
+        k = (k_lo + k_hi) // 2                # the middle: the most headroom on both partial products
+        lo = (a & ((1 << k) - 1)) * b         # < 2^(k + b_bits)
+        lo += 1 << (s - 1)
+        lo >>= k
+        hi = (a >> k) * b                     # <= a b 2^-k < 2^(product_bits - k)
+        hi += lo
+        hi >>= s - k
+        return hi
     a1, a0 = a >> _LIMB, a & _LIMB_MASK
     b1, b0 = b >> _LIMB, b & _LIMB_MASK
     c0 = a0 * b0                         # weight 2^0,  < 2^48
@@ -66,10 +81,13 @@ def _mul_shift_round(a: np.ndarray, b: np.ndarray, s: int, product_bits: int) ->
 def _bit_length(x: np.ndarray) -> np.ndarray:
     """Bit length (1-based position of the leading one) of positive int64 values < 2^53.
 
-    np.frexp(x) = (m, e) with x = m 2^e, m in [0.5, 1): e is the bit length. The int -> float64
-    conversion is exact below 2^53, so this is exact (powers of two included: 2^j = 0.5 * 2^(j+1)).
+    The int -> float64 conversion is exact below 2^53, and a positive float64 x = 1.f 2^(E - 1023) has the
+    biased exponent E in bits 52-62 of its word: the bit length is E - 1022 (as np.frexp's exponent; powers
+    of two included: 2^j has E = j + 1023).
     """
-    return np.frexp(x.astype(np.float64))[1].astype(np.int64)
+    n = x.astype(np.float64).view(np.int64) >> 52
+    n -= 1022
+    return n
 
 
 def _check_shape(name: str, shape) -> Shape:
@@ -103,7 +121,7 @@ def _check_raw(raw, shape: Shape, what: str) -> np.ndarray:
     x = np.asarray(raw)
     if x.dtype.kind not in "iu":
         raise ValueError(f"{what}: raw inputs must be integers, got dtype {x.dtype}")
-    x = x.astype(np.int64)
+    x = np.asarray(x, np.int64)          # no copy: the units never write into their input
     if x.size and (int(x.min()) < shape.min_raw or int(x.max()) > shape.max_raw):
         raise ValueError(f"{what}: raw inputs outside {shape} (raw range {shape.min_raw}..{shape.max_raw})")
     return x
@@ -189,6 +207,10 @@ class Rsqrt:
         # the largest normalisation exponent k any input can have: mantissa rounding happens iff k > M
         self.k_max = int(in_shape.max_raw).bit_length() + 1
         self._bound = None
+        # the ROM addressed by idx itself (idx_lo unused words below it: idx >= idx_lo), saving a subtraction
+        self._rom = np.concatenate([np.zeros(self.idx_lo, np.int64), self.seed_table])
+        # an upper bound on the denormalising shift s = Y + e - fo (k <= k_max, step 5)
+        self._s_max = Y - out_shape.f + (self.k_max - in_shape.f + 1) // 2
 
     # ---- the unit
     def _core(self, raw):
@@ -196,23 +218,26 @@ class Rsqrt:
         x = _check_raw(raw, self.in_shape, f"Rsqrt({self.in_shape} -> {self.out_shape})")
         M, Y, fi = self.M, self.Y, self.in_shape.f
         positive = x > 0
-        xs = np.where(positive, x, 1)
+        xs = x if positive.all() else np.where(positive, x, 1)
         # 2. normalise
         n = _bit_length(xs)
         k = n + ((n - fi) & 1)
-        left = np.maximum(M - k, 0)
-        right = np.maximum(k - M, 0)
-        m = ((xs << left) + ((1 << right) >> 1)) >> right       # exact left shift or shift_round right
-        m = np.minimum(m, (1 << M) - 1)
+        if self.k_max <= M:            # no input has k > M: m = x << (M - k) < 2^M, exact
+            m = xs << (M - k)
+        else:
+            left = np.maximum(M - k, 0)
+            right = np.maximum(k - M, 0)
+            m = ((xs << left) + ((1 << right) >> 1)) >> right   # exact left shift or shift_round right
+            m = np.minimum(m, (1 << M) - 1)
         e = (k - fi) >> 1                                        # exact: k - fi is even
         # 3. seed
-        y = self.seed_table[(m >> (M - self.seed_bits)) - self.idx_lo]
+        y = self._rom[m >> (M - self.seed_bits)]
         # 4. Newton steps (products exact, then rounded)
         for _ in range(self.newton_steps):
-            y2 = _mul_shift_round(y, y, Y, 2 * (Y + 2))                # UQ(3, Y)
-            h = _mul_shift_round(m, y2, M, M + Y + 3)                   # UQ(3, Y)
+            y2 = _mul_shift_round(y, y, Y, 2 * (Y + 2), Y + 2)          # UQ(3, Y)
+            h = _mul_shift_round(m, y2, M, M + Y + 3, Y + 3)            # UQ(3, Y)
             t = (3 << Y) - h                                            # UQ(2, Y)
-            y = _mul_shift_round(y, t, Y + 1, 2 * (Y + 2))              # UQ(2, Y)
+            y = _mul_shift_round(y, t, Y + 1, 2 * (Y + 2), Y + 2)       # UQ(2, Y)
         return positive, y, e
 
     def internal(self, raw: np.ndarray) -> np.ndarray:
@@ -226,14 +251,20 @@ class Rsqrt:
         Y = self.Y
         # 5. denormalise: shift_round(y, s), s = Y + e - fo, per element; then saturate
         out = self.out_shape
-        s = Y + e - out.f
-        rs = np.minimum(np.maximum(s, 0), Y + 3)   # y < 2^(Y+2): any right shift >= Y + 3 gives 0
-        ls = np.minimum(np.maximum(-s, 0), 62)     # y > 2^(Y-1) >= 1: shifts >= 33 overflow anyway
-        # a left-shifted y overflows iff y > max_raw >> ls; clip it to (max_raw >> ls) + 1 first, so the
-        # shift itself never overflows int64 and the saturation below still sees (and counts) it
-        yl = np.where(ls > 0, np.minimum(y, (out.max_raw >> ls) + 1), y)
-        res = ((yl << ls) + ((1 << rs) >> 1)) >> rs
-        res = np.where(positive, res, out.max_raw + 1)             # 1. x <= 0: saturate (counted)
+        s = e + (Y - out.f)
+        if s.size and s.min() >= 0:                # the common case: right shifts only
+            # y < 2^(Y+2): a shift beyond Y + 3 (up to 62, no int64 overflow) still gives 0, as the clamp does
+            rs = s if self._s_max <= 62 else np.minimum(s, Y + 3)
+            res = (y + ((1 << rs) >> 1)) >> rs
+        else:
+            rs = np.minimum(np.maximum(s, 0), Y + 3)   # y < 2^(Y+2): any right shift >= Y + 3 gives 0
+            ls = np.minimum(np.maximum(-s, 0), 62)     # y > 2^(Y-1) >= 1: shifts >= 33 overflow anyway
+            # a left-shifted y overflows iff y > max_raw >> ls; clip it to (max_raw >> ls) + 1 first, so the
+            # shift itself never overflows int64 and the saturation below still sees (and counts) it
+            yl = np.where(ls > 0, np.minimum(y, (out.max_raw >> ls) + 1), y)
+            res = ((yl << ls) + ((1 << rs) >> 1)) >> rs
+        if not positive.all():
+            res = np.where(positive, res, out.max_raw + 1)         # 1. x <= 0: saturate (counted)
         return out.saturate(res, sat, self.name)
 
     # ---- references and bounds
@@ -377,6 +408,8 @@ class DamperTable:
         self.tab_c2, self.clip_c2 = self._rom(c2, c2_shape)
         self.tab_inv, self.clip_inv = self._rom(1.0 / (c1 + c2), inv_shape)
         self.c1_raw = int(_round_raw(c1, c2_shape.f))
+        # tab[j + 1] - tab[j] of both tables, precomputed (exact integers): one lookup instead of two
+        self._slope_c2, self._slope_inv = np.diff(self.tab_c2), np.diff(self.tab_inv)
 
     @staticmethod
     def _rom(values, shape: Shape):
@@ -389,30 +422,33 @@ class DamperTable:
         f = _check_raw(f_raw, self.f_shape, f"DamperTable({self.f_shape})")
         S, P = self.S, self.P
         cap = 1 << (S + P)
-        low, high = f <= self.F1, f >= self.F2                    # 1. the flat pieces
+        high = f >= self.F2                                      # 1. the flat pieces
         D = np.maximum(f * self.K_raw - self.OFF, 0)             # 2. (>= 0 wherever it is used)
         s = self.pos_shift
         if s > 0:
-            pos = np.minimum(shift_round(D, min(s, 62)), cap)    # D < 2^61: shifts >= 62 give 0
+            pos = np.minimum(_shift_round_owned(D, min(s, 62)), cap)    # D < 2^61: shifts >= 62 give 0
         else:
             lim = 1 << max(S + P + s, 0)                         # D << -s >= cap iff D >= lim
             pos = np.where(D >= lim, cap, np.minimum(D, lim) << -s)
-        pos = np.where(low, 0, np.where(high, cap, pos))
-        end = pos >= cap
-        idx = np.where(end, (1 << S) - 1, pos >> P)              # 3.
-        frac = np.where(end, 1 << P, pos & ((1 << P) - 1))
-        c2 = self._interp(self.tab_c2, self.clip_c2, idx, frac, sat)      # 4.
-        inv = self._interp(self.tab_inv, self.clip_inv, idx, frac, sat)
+        if self.F1 < self.f_shape.max_raw:
+            # f <= F1 already has D = 0, so pos = 0: f K_raw <= F1x K_raw < OFF + 1/2 (F1 <= F1x)
+            pos = np.where(high, cap, pos)
+        else:
+            pos = np.where(f <= self.F1, 0, np.where(high, cap, pos))
+        idx = np.minimum(pos >> P, (1 << S) - 1)                 # 3. (pos <= cap: the end point gives
+        frac = pos - (idx << P)                                  #     idx = 2^S - 1, frac = 2^P)
+        c2 = self._interp(self.tab_c2, self._slope_c2, self.clip_c2, idx, frac, sat)      # 4.
+        inv = self._interp(self.tab_inv, self._slope_inv, self.clip_inv, idx, frac, sat)
         c12 = self.c2_shape.saturate(c2 + self.c1_raw, sat, self.name)   # 5.
         return c2, c12, inv
 
-    def _interp(self, tab, clipped, idx, frac, sat):
-        lo, hi = tab[idx], tab[idx + 1]
+    def _interp(self, tab, slope, clipped, idx, frac, sat):
+        """tab[idx] + shift_round(frac (tab[idx + 1] - tab[idx]), P), with slope[idx] = tab[idx + 1] - tab[idx]."""
         if sat is not None and clipped.any():
             n = int(np.count_nonzero(clipped[idx] | (clipped[idx + 1] & (frac > 0))))
             if n:
                 sat.add(self.name, n)
-        return lo + shift_round(frac * (hi - lo), self.P)
+        return tab[idx] + _shift_round_owned(frac * slope[idx], self.P)
 
     # ---- references and bounds
     def reference(self, f):
