@@ -184,7 +184,7 @@ def cmd_bench(args) -> int:
     fpga = {}
     if args.backend == "fpga":
         fpga = dict(preset=args.preset or "narrow", lanes=args.lanes, node_lanes=args.node_lanes,
-                    simulator=args.simulator, fmax_mhz=args.fmax_mhz, device=args.device,
+                    simulator=args.simulator, steps=args.hdl_steps, fmax_mhz=args.fmax_mhz, device=args.device,
                     log=None if args.json else (lambda m: print(f"  {m}", flush=True)))
     elif any(v is not None for v in (args.preset, args.fmax_mhz)) or args.lanes != 1 or args.node_lanes != 1:
         raise UsageError("--preset, --lanes, --node-lanes and --fmax-mhz belong to --backend fpga")
@@ -198,7 +198,8 @@ def cmd_bench(args) -> int:
     elif args.backend == "fpga":
         for r in rows:
             print(f"{r['scene']}: {r['elements']} elements, {r['nodes']} nodes, preset {r['preset']}, "
-                  f"P = {r['lanes']}, Q = {r['node_lanes']}: {r['cycles_per_step']:.0f} cycles/step ({r['simulator']})")
+                  f"P = {r['lanes']}, Q = {r['node_lanes']}: {r['cycles_per_step']:.0f} cycles/step ({r['simulator']}: "
+                  f"{r['simulator_cycles_per_s']:.0f} cycles/s, host interface included)")
             print(f"  Fmax {r['fmax_mhz']:.1f} MHz ({r['fmax_source']}) -> {r['steps_per_s']:.0f} steps/s, "
                   f"{r['element_updates_per_s']:.3e} element-updates/s")
             print(f"  golden model on this machine: {r['golden_steps_per_s']:.1f} steps/s; "
@@ -399,6 +400,8 @@ def build_parser() -> argparse.ArgumentParser:
     _lane_args(s)
     s.add_argument("--simulator", choices=["verilator", "icarus"], default="verilator",
                    help="fpga: HDL simulator that measures cycles per step (default verilator)")
+    s.add_argument("--hdl-steps", type=_positive_int, default=2,
+                   help="fpga: steps the simulated core runs to measure cycles per step (default 2)")
     s.add_argument("--fmax-mhz", type=_positive_float,
                    help="fpga: clock to model with, instead of placing and routing the core (minutes to an hour)")
     s.add_argument("--device", default="ecp5-85k", help="fpga: device for place and route (default ecp5-85k)")
