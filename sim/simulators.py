@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import fcntl
 import json
 import os
 import re
@@ -262,7 +263,10 @@ def run_cocotb(
         env_updates["SIM_CMD_PREFIX"] = f"timeout --kill-after=10 {float(timeout_s):g}"
 
     stamp = _build_stamp(simulator, binary, sources, toplevel, build_args)
-    with _patched_environ(env_updates):
+    # one run per build directory at a time (parallel test workers may build the same core)
+    with open(build_dir / ".lock", "w") as lock, _patched_environ(env_updates):
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        results_xml.unlink(missing_ok=True)       # a crashed run must not leave an old verdict behind
         runner = get_runner(simulator)
         if not (product.exists() and stamp_file.exists()
                 and stamp_file.read_text() == stamp):
@@ -304,8 +308,11 @@ def run_cocotb(
             # code"); under pytest the runner itself sys.exit()s on failed tests.
             except (RuntimeError, SystemExit) as e:
                 sim_error = str(e) or type(e).__name__
+        have_results = results_xml.is_file()
+        if have_results:
+            n, failed = _parse_results(results_xml)
 
-    if not results_xml.is_file():
+    if not have_results:
         why = sim_error or "no results file"
         if timeout_s is not None and "124" in why:
             why = f"timed out after {timeout_s:g} s"
@@ -313,7 +320,6 @@ def run_cocotb(
             f"{simulator} simulation of {toplevel} ({test_module}) terminated abnormally "
             f"({why}); tail of {test_log}:\n{_tail(test_log)}"
         )
-    n, failed = _parse_results(results_xml)
     if sim_error is not None and not failed:
         raise RuntimeError(
             f"{simulator} simulation of {toplevel} ({test_module}) exited with an error "
