@@ -768,26 +768,37 @@ def _start(sys: System, dt: float, n: int, seed: int, perturb: float):
     return s, st
 
 
-def _run(sys: System, dt: float, n: int, check, check_every: int, seed: int, perturb: float):
+def _run(sys: System, dt: float, n: int, check, check_every: int, seed: int, perturb: float, model=None):
     """Step the scene; every check_every steps ask the DivergenceTest, then check(t, energy); stop at the
-    first reason. Returns (reason or None, steps run)."""
+    first reason. Returns (reason or None, steps run).
+
+    model: None steps golden.model.Golden; else model(scene at dt, perturbed start State) returns another
+    stepper with the protocol of golden.model.simulate (initial_state(), step(st), frame(st) -> SI x, v,
+    a), e.g. the bit-true model (hw/stability_fixed.py); a SimulationDiverged it raises (runaway
+    saturations) ends the run as unstable."""
     s, st = _start(sys, dt, n, seed, perturb)
     test = DivergenceTest(s, extra_energy=mechanical_energy(s, st.x, st.v, st.a))
-    g = Golden(s)
+    g = Golden(s) if model is None else model(s, st)
+    if model is not None:
+        st = g.initial_state()
     with np.errstate(over="ignore", invalid="ignore"):
         while st.step < n:
             stop = min(n, st.step + check_every)
-            while st.step < stop:
-                g.step(st)
-            why = test.why(st.x, st.v, st.a, st.step) or check(st.step * dt, test.last_energy)
+            try:
+                while st.step < stop:
+                    g.step(st)
+                x, v, a = (st.x, st.v, st.a) if model is None else g.frame(st)
+            except SimulationDiverged as exc:          # only other models raise (golden steps never do)
+                return f"step {st.step}: {exc}", st.step
+            why = test.why(x, v, a, st.step) or check(st.step * dt, test.last_energy)
             if why is not None:
                 return f"step {st.step}: {why}", st.step
     return None, n
 
 
 def reference(sys: System, dt: float, t_end: float, check_every: int = 25, seed: int = 0,
-              perturb: float = PERTURB) -> Reference:
-    """Energy history of the scene at dt (expected stable) up to t_end."""
+              perturb: float = PERTURB, model=None) -> Reference:
+    """Energy history of the scene at dt (expected stable) up to t_end (of another model: see _run)."""
     n = max(1, int(math.ceil(t_end / dt - 1e-9)))
     ts, Es = [], []
 
@@ -795,14 +806,15 @@ def reference(sys: System, dt: float, t_end: float, check_every: int = 25, seed:
         ts.append(t)
         Es.append(E)
 
-    why, _ = _run(sys, dt, n, record, check_every, seed, perturb)
+    why, _ = _run(sys, dt, n, record, check_every, seed, perturb, model)
     if why is not None:
         raise RuntimeError(f"scene '{sys.name}': the reference run at dt = {dt:.4g} s is unstable ({why})")
     return Reference(np.array(ts), np.array(Es), dt, max(0.02 * t_end, 4 * check_every * dt))
 
 
 def trial(sys: System, dt: float, ref: Reference | None = None, steps: int | None = None,
-          max_steps: int = MAX_STEPS, check_every: int = 25, seed: int = 0, perturb: float = PERTURB):
+          max_steps: int = MAX_STEPS, check_every: int = 25, seed: int = 0, perturb: float = PERTURB,
+          model=None):
     """Run the scene at dt; returns (stable, reason or None, steps run).
 
     Unstable: the DivergenceTest fires (non-finite, out of the box, energy > GROWTH x work bound), or,
@@ -823,14 +835,16 @@ def trial(sys: System, dt: float, ref: Reference | None = None, steps: int | Non
                     f"the reference run at dt = {ref.dt:.3g} s")
         return None
 
-    why, done = _run(sys, dt, n, check, check_every, seed, perturb)
+    why, done = _run(sys, dt, n, check, check_every, seed, perturb, model)
     return why is None, why, done
 
 
 def measure(sys: System, lo: float | None = None, hi: float | None = None, rel_tol: float = 0.05,
             steps: int | None = None, max_steps: int = MAX_STEPS, pred: dict | None = None,
-            compare: bool | None = None, verbose: bool = False) -> dict:
-    """Measured largest stable dt by bisection on real runs of the golden model.
+            compare: bool | None = None, verbose: bool = False, trial_fn=None) -> dict:
+    """Measured largest stable dt by bisection on real runs of the golden model, or of another model:
+    trial_fn(sys, dt, ref, steps=, max_steps=) -> (stable, reason or None, steps run) replaces trial
+    (hw.stability_fixed.trial_fixed: the bit-true model); the reference run stays a golden run.
 
     compare: judge the trials against a reference run too (see trial); by default only when the scene
     has something that moves it (loads, gravity or an initial velocity). Without, a run that only relaxes
@@ -863,9 +877,10 @@ def measure(sys: System, lo: float | None = None, hi: float | None = None, rel_t
                 raise
             dt_ref *= 0.5                              # the prediction was far too high: a smaller yardstick
     trials = []
+    trial_fn = trial if trial_fn is None else trial_fn
 
     def run(dt):
-        ok, why, n = trial(sys, dt, ref, steps=steps, max_steps=max_steps)
+        ok, why, n = trial_fn(sys, dt, ref, steps=steps, max_steps=max_steps)
         trials.append({"dt": dt, "stable": ok, "steps": n, "why": why})
         if verbose:
             print(f"  dt = {dt:.5g}: {'stable' if ok else 'unstable'} ({n} steps){'' if ok else ' ' + why}",

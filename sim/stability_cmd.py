@@ -1,5 +1,6 @@
-"""`rheo stability SCENE [--measure] [--json]`: the predicted (and measured) largest stable dt of a scene,
-and the guard `refuse_if_unstable` for `rheo simulate` (golden/stability.py has the formulas).
+"""`rheo stability SCENE [--measure [--model golden|fixed|both] [--preset P]] [--json]`: the predicted (and
+measured) largest stable dt of a scene, and the guard `refuse_if_unstable` for `rheo simulate`
+(golden/stability.py has the formulas and the bisection; hw/stability_fixed.py the bit-true trial).
 
 Wiring in sim/cli.py:
 
@@ -12,16 +13,25 @@ from __future__ import annotations
 import json
 import math
 
+MODELS = ("golden", "fixed", "both")
+
 
 def add_parser(subparsers):
     s = subparsers.add_parser(
         "stability", help="predicted (and measured) largest stable dt of a scene",
         description="Predict the largest dt at which the explicit (symplectic Euler) step of a scene is stable, "
                     "with the node or element that limits it; --measure also finds the real limit by bisection "
-                    "on runs of the golden model.")
+                    "on runs of the golden model, or of the bit-true model (--model fixed or both).")
+    from hw.formats import PRESETS
     s.add_argument("scene", help="built-in scene name or path to a scene .toml")
     s.add_argument("--measure", action="store_true",
                    help="also measure the limit on real runs (seconds to a minute for the built-in 2D scenes)")
+    # default None, not the default value: given without --measure is an error (cmd)
+    s.add_argument("--model", choices=MODELS, default=None,
+                   help="--measure on the golden model, the bit-true model or both (default: golden; "
+                        "measuring the bit-true model takes 5-10x as long)")
+    s.add_argument("--preset", choices=list(PRESETS), default=None,
+                   help="--measure --model fixed/both: number-format preset of the bit-true model (default: wide)")
     s.add_argument("--json", action="store_true", help="print JSON")
     s.set_defaults(func=cmd)
     return s
@@ -42,24 +52,48 @@ def _s(x: float) -> str:
     return "none" if not math.isfinite(x) else f"{x:.4g} s"
 
 
-def report(sys_, measure: bool = False) -> dict:
-    """Prediction (and measurement) as one dict."""
+def _measured(m: dict) -> dict:
+    return {"dt_meas": m["dt_meas"], "stable_at": m["lo"], "unstable_at": m["hi"], "ratio": m["ratio"],
+            "runs": len(m["trials"]), "seconds": m["seconds"], "reference_dt": m["dt_ref"]}
+
+
+def report(sys_, measure: bool = False, model: str = "golden", preset: str = "wide") -> dict:
+    """Prediction (and measurement) as one dict: "measured" on the golden model, "measured_fixed" on the
+    bit-true model of the preset (hw/stability_fixed.py), with "vs_golden" (its limit / golden's) for both."""
     from golden.stability import measure as measure_dt
     from golden.stability import predict
+    if model not in MODELS:
+        raise ValueError(f"unknown model '{model}' (known: {', '.join(MODELS)})")
     p = predict(sys_)
     out = {"scene": sys_.name, "nodes": sys_.n_nodes, "elements": sys_.n_elements, **p}
-    if measure:
-        m = measure_dt(sys_, pred=p)
-        out["measured"] = {"dt_meas": m["dt_meas"], "stable_at": m["lo"], "unstable_at": m["hi"],
-                           "ratio": m["ratio"], "runs": len(m["trials"]), "seconds": m["seconds"],
-                           "reference_dt": m["dt_ref"]}
+    if not measure:
+        return out
+    try:
+        if model in ("golden", "both"):
+            out["measured"] = _measured(measure_dt(sys_, pred=p))
+        if model in ("fixed", "both"):
+            from hw.stability_fixed import measure_fixed
+            m = measure_fixed(sys_, preset, pred=p)
+            out["measured_fixed"] = {"preset": preset, **_measured(m), "yardstick": m["yardstick"],
+                                     "bit_true_reference_dt": m["bit_ref_dt"]}
+            if "measured" in out:
+                out["measured_fixed"]["vs_golden"] = m["dt_meas"] / out["measured"]["dt_meas"]
+    except RuntimeError as exc:          # no bracket found, unstable reference run: one line, no traceback
+        raise ValueError(str(exc)) from None
     return out
 
 
 def cmd(args) -> int:
     from golden.scene import compile_scene, load_scene
+    # ValueError: sim/cli.py prints it as one line, exit 2 (its UsageError would be a different class
+    # here when the CLI runs as `python -m sim.cli`)
+    given = [opt for opt, val in (("--model", args.model), ("--preset", args.preset)) if val is not None]
+    if given and not args.measure:
+        raise ValueError(f"{' and '.join(given)} {'apply' if len(given) > 1 else 'applies'} only with --measure")
+    if args.preset is not None and args.model in (None, "golden"):
+        raise ValueError("--preset is the bit-true model's: use it with --model fixed or --model both")
     sys_ = compile_scene(load_scene(args.scene))
-    out = report(sys_, args.measure)
+    out = report(sys_, args.measure, args.model or "golden", args.preset or "wide")
     if args.json:
         print(json.dumps(_finite(out), indent=2))
         return 0
@@ -88,6 +122,12 @@ def cmd(args) -> int:
         print(f"  measured stable dt   {_s(m['dt_meas'])}  (stable at {m['stable_at']:.4g} s, unstable at "
               f"{m['unstable_at']:.4g} s; {m['runs']} runs, {m['seconds']:.1f} s)")
         print(f"  predicted / measured {m['ratio']:.3f}")
+    if "measured_fixed" in out:
+        m = out["measured_fixed"]
+        print(f"  bit-true ({m['preset']}) stable dt {_s(m['dt_meas'])}  (stable at {m['stable_at']:.4g} s, "
+              f"unstable at {m['unstable_at']:.4g} s; {m['runs']} runs, {m['seconds']:.1f} s)")
+        print(f"  predicted / bit-true {m['ratio']:.3f}"
+              + (f";  bit-true / golden {m['vs_golden']:.3f}" if "vs_golden" in m else ""))
     return 0
 
 

@@ -6,15 +6,20 @@ import argparse
 import dataclasses
 import json
 import math
+import os
+import subprocess
+import sys as _sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from golden.model import Golden, SimulationDiverged, State
 from golden.scene import builtin_names, compile_scene, load_scene
-from golden.stability import (EnergyWatch, measure, node_three_element_limit, predict, three_element_limit,
-                              voigt_limit)
+from golden.stability import (EnergyWatch, _start, measure, node_three_element_limit, predict, reference,
+                              three_element_limit, voigt_limit)
+from hw.stability_fixed import bittrue_model, float_datapath_model, measure_fixed, trial_fixed
 from sim import stability_cmd
 from sim.stability_cmd import refuse_if_unstable
 
@@ -227,3 +232,106 @@ def test_stability_command_measures(capsys):
     m = data["measured"]
     assert m["stable_at"] <= m["dt_meas"] <= m["unstable_at"]
     assert 0.5 <= m["ratio"] <= 1.0
+
+
+# ---------------------------------------------------------------- the bit-true model's measured limit
+
+
+def test_bittrue_trial_starts_from_the_golden_trials_perturbed_positions():
+    sys_ = compile_scene(load_scene("creep-1d"))
+    s, st = _start(sys_, 1e-3, 100, seed=0, perturb=1e-6)
+    stepper = bittrue_model("wide")(s, st)
+    x, v, a = stepper.frame(stepper.initial_state())
+    lsb = 2.0 ** -stepper.bt.formats["x"].f * stepper.bt.units.to_length(1.0)
+    assert np.abs(x - st.x).max() <= lsb                          # the perturbed start, rounded to x
+    assert np.abs(x - sys_.x0).max() > 10 * lsb                   # ... not the scene's own x0
+
+
+def test_bittrue_trial_counts_runaway_saturations_as_unstable():
+    sys_ = compile_scene(load_scene("creep-1d"))
+    dt = predict(sys_)["dt_pred"]
+    assert trial_fixed(sys_, dt, steps=300) == (True, None, 300)
+    narrow_u = dataclasses.replace(sys_, formats={"u": "SQ(-12, 20)"})    # velocities cannot fit
+    ok, why, n = trial_fixed(narrow_u, dt, steps=300)
+    assert not ok and n == 25 and "runaway saturations" in why and why.startswith("bit-true (wide)")
+    ok, why, _ = trial_fixed(sys_, 4 * dt, steps=300)                    # the float physics diverges
+    assert not ok and "golden trial is unstable" in why
+
+
+def test_float_datapath_run_follows_the_golden_run():
+    """The `model` hook of golden.stability: the float datapath's energy history equals golden's."""
+    sys_ = compile_scene(load_scene("press-2d-viscoelastic"))
+    dt = predict(sys_)["dt_pred"]
+    g = reference(sys_, dt, 300 * dt)
+    f = reference(sys_, dt, 300 * dt, model=float_datapath_model)
+    assert len(g.E) == len(f.E) == 12 and g.peak > 0
+    assert np.allclose(f.E, g.E, rtol=1e-8, atol=0)
+
+
+def test_bittrue_trial_without_formats_is_unstable():
+    sys_ = compile_scene(load_scene("press-2d-rheological"))
+    coarse = dataclasses.replace(sys_, formats={"force": "SQ(17, 0)"})     # damper table below one LSB
+    ok, why, n = trial_fixed(coarse, predict(sys_)["dt_pred"], steps=50)
+    assert not ok and n == 0 and "formats cannot be derived" in why and "DamperTable" in why
+
+
+# Runtime (this 2-core machine, load 2-5): creep-1d 1-4 s (its whole duration, ~250 steps a trial);
+# press-2d-viscoelastic 10-26 s (trials capped at 600 steps, 0.36 s of its 1.5 s, past the load's start;
+# the reference runs then span 1.07 s; the full measure takes 25-60 s per preset). A bit-true step costs
+# ~0.7 ms, a float datapath step ~0.4 ms (twice per trial: its own check and the range analysis), a
+# golden step ~0.1 ms.
+@pytest.mark.parametrize("name, steps", [("creep-1d", None), ("press-2d-viscoelastic", 600)])
+def test_bittrue_wide_limit_is_the_golden_limit(name, steps):
+    """Quantisation must not cost stability: the wide bit-true limit within 15 % of the golden one."""
+    sys_ = compile_scene(load_scene(name))
+    g = measure(sys_, steps=steps)
+    f = measure_fixed(sys_, "wide", steps=steps)
+    assert f["preset"] == "wide" and f["lo"] <= f["dt_meas"] <= f["hi"]
+    assert abs(f["dt_meas"] / g["dt_meas"] - 1) < 0.15, (g["lo"], g["hi"], f["lo"], f["hi"], f["trials"])
+
+
+def test_bittrue_narrow_limit_on_creep():
+    sys_ = compile_scene(load_scene("creep-1d"))
+    g = measure(sys_)
+    f = measure_fixed(sys_, "narrow")
+    assert 0 < f["dt_meas"] <= 1.05 * g["dt_meas"], (g["dt_meas"], f["trials"])
+
+
+def rheo(*args, timeout=300):
+    """The CLI in a subprocess, as a user runs it (tests/test_cli.py)."""
+    root = Path(__file__).resolve().parent.parent
+    env = dict(os.environ, PYTHONPATH=str(root))
+    return subprocess.run([_sys.executable, "-m", "sim.cli", *map(str, args)], cwd=root, env=env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def test_stability_command_measures_both_models():
+    proc = rheo("stability", "creep-1d", "--measure", "--model", "both", "--json")
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+    data = json.loads(proc.stdout)
+    g, f = data["measured"], data["measured_fixed"]
+    assert f["preset"] == "wide" and f["yardstick"] == "bit-true"
+    for m in (g, f):
+        assert m["stable_at"] <= m["dt_meas"] <= m["unstable_at"] and m["runs"] > 0
+    assert f["vs_golden"] == pytest.approx(f["dt_meas"] / g["dt_meas"])
+    assert 0.85 <= f["vs_golden"] <= 1.0
+    proc = rheo("stability", "creep-1d", "--measure", "--model", "fixed", "--preset", "narrow")
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
+    assert "bit-true (narrow) stable dt" in proc.stdout and "measured stable dt" not in proc.stdout
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--measure", "--model", "nope"], ["--model", "'nope'"]),
+    (["--measure", "--model", "fixed", "--preset", "huge"], ["--preset", "'huge'"]),
+    (["--model", "fixed"], ["--model", "--measure"]),
+    (["--preset", "narrow"], ["--preset", "--measure"]),
+    (["--measure", "--preset", "narrow"], ["--preset", "--model fixed"]),
+])
+def test_stability_command_bad_model_or_preset(argv, words):
+    proc = rheo("stability", "creep-1d", *argv)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr + proc.stdout, proc.stderr
+    # one error line (argparse's choice errors come after the usage line, as in every subcommand)
+    errors = [ln for ln in proc.stderr.splitlines() if "error:" in ln]
+    assert len(errors) == 1, proc.stderr
+    assert all(w in errors[0] for w in words), errors[0]
