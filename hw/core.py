@@ -16,11 +16,13 @@ One time step runs in two phases:
 
 Force accumulation without read-after-write hazards, by construction: every lane owns one accumulator
 bank per role (element: node i, node j; pair: the vertex and each facet vertex), a simple dual-port
-memory read and written back one cycle later. Its read port is transparent to its write port, so an
-element that reads a node word in the cycle in which the previous element writes it sees the new sum:
-any element order is correct, and no two lanes ever share a bank. The node pipeline adds the banks
-exactly (integers wide enough for the largest number of contributions any node receives), so the
-result equals the bit-true model's exact scatter, whatever the order.
+memory read, its word registered, and written back two cycles after the read (RMW_WRITE). Its read port
+is transparent to its write port, so an element that reads a node word in the cycle in which the element
+two ahead writes it sees the new sum; the element just ahead writes one cycle after this one's read, so
+its sum is forwarded from a register instead (when both address the same word). Any element order is
+correct, and no two lanes ever share a bank. The node pipeline adds the banks exactly (integers wide
+enough for the largest number of contributions any node receives), so the result equals the bit-true
+model's exact scatter, whatever the order.
 
 Node state (x, u per dimension) lives in memories of ceil(N/Q) words, one memory per node lane slot;
 element lanes read both end nodes through their own read ports.
@@ -60,6 +62,8 @@ ID_WORD = 0x52484530
 REG_ID, REG_RUN, REG_STATUS, REG_STEP, REG_SAT, REG_SAT_FLAGS, REG_CYCLES = range(7)
 NODE_BASE, ELEM_BASE = 0x100000, 0x200000
 READ_LATENCY = 2
+SAT_COUNT_LATENCY = 2  # lane sums of saturation flags, then their sum over lanes, then sat_count
+RMW_WRITE = 2          # an accumulator bank word read at stage s is written back at stage s + RMW_WRITE
 ADDR_BITS = 24
 
 HostSignature = wiring.Signature({
@@ -190,6 +194,14 @@ def _bits(n):
     return max(1, int(n - 1).bit_length()) if n > 1 else 1
 
 
+def _registered(m, value, name):
+    """value one cycle later, in a register: memory read data goes through one before any arithmetic (a
+    block RAM's clock-to-output delay is about half a 100 MHz cycle)."""
+    r = Signal.like(value, name=name)
+    m.d.sync += r.eq(value)
+    return r
+
+
 class Core(wiring.Component):
     """The specialised accelerator for one scene (see the module docstring for phases and registers).
 
@@ -246,7 +258,7 @@ class Core(wiring.Component):
         node_fields = [Xm[k] for k in range(D)] + [Um[k] for k in range(D)]
 
         def read_node(word, slot, name):
-            """Read ports on every node field for a node (word, slot); data one cycle later."""
+            """Read ports on every node field for a node (word, slot); data two cycles later (registered)."""
             outs = []
             slot_d = Signal.like(slot, name=f"{name}_slot_d")
             m.d.sync += slot_d.eq(slot)
@@ -257,14 +269,14 @@ class Core(wiring.Component):
                     m.d.comb += rp.addr.eq(word)
                     datas.append(rp.data)
                 if Q == 1:
-                    outs.append(datas[0])
+                    outs.append(_registered(m, datas[0], f"{name}_f{fi}_r"))
                 else:
                     sel = Signal(mems[0].shape, name=f"{name}_f{fi}")
                     with m.Switch(slot_d):
                         for q in range(Q):
                             with m.Case(q):
                                 m.d.comb += sel.eq(datas[q])
-                    outs.append(sel)
+                    outs.append(_registered(m, sel, f"{name}_f{fi}_r"))
             return outs[:D], outs[D:]
 
         # ---------------------------------------------------------------- accumulator banks
@@ -280,7 +292,7 @@ class Core(wiring.Component):
                 for q in range(Q):
                     wp = mems[k][q].write_port()
                     rp = mems[k][q].read_port(domain="sync", transparent_for=(wp,))
-                    ports[k][q] = (rp, wp)
+                    ports[k][q] = (rp, wp, _registered(m, rp.data, f"acc_{name}_{k}_{q}_r"))
             banks.append((name, ports, width))
             return ports
 
@@ -308,8 +320,10 @@ class Core(wiring.Component):
                 vals = np.zeros(S, np.int64)
                 vals[:len(items)] = np.asarray(raw)[items]
                 rom_fields.append((sig, vals))
-                return sig
-            ar = PipeArith(m, fmt, cfg.units, valid0, f"el{lane}", src, param_stage=1)
+                return _registered(m, sig, f"el{lane}_prm_{q}_r")
+            # stage 0: ROM and element state read; 2: ROM data (parameters, node addresses, which then read
+            # the node memories) and element state registered; 4: node x, u registered
+            ar = PipeArith(m, fmt, cfg.units, valid0, f"el{lane}", src, param_stage=2)
             all_arith.append(ar)
             iw, is_, jw, js = (Signal(_bits(W) + 1, name=f"el{lane}_{n}") for n in ("iw", "is", "jw", "js"))
             ni, nj = p.i[items], p.j[items]
@@ -317,6 +331,7 @@ class Core(wiring.Component):
                 vals = np.zeros(S, np.int64)
                 vals[:len(items)] = arr
                 rom_fields.append((sig, vals))
+            iw, is_, jw, js = (_registered(m, v, f"{v.name}_r") for v in (iw, is_, jw, js))
             Xi, Ui = read_node(iw, is_, f"el{lane}_ni")
             Xj, Uj = read_node(jw, js, f"el{lane}_nj")
             # element state
@@ -336,11 +351,12 @@ class Core(wiring.Component):
                 FP_rp = FP_mem.read_port(domain="sync")
                 m.d.comb += FP_rp.addr.eq(cnt)
             with ar:
-                A = ar.input(A_rp.data, "a", 1)
-                FP = ar.input(FP_rp.data, "force", 1) if has_fp else ar.zeros("force", 1)
+                A = ar.input(_registered(m, A_rp.data, f"el{lane}_a_r"), "a", 2)
+                FP = (ar.input(_registered(m, FP_rp.data, f"el{lane}_fp_r"), "force", 2) if has_fp
+                      else ar.zeros("force", 1))
                 fe, newA, newFP = element_kernel(
-                    ar, p, [ar.input(v, "x", 2) for v in Xi], [ar.input(v, "x", 2) for v in Xj],
-                    [ar.input(v, "u", 2) for v in Ui], [ar.input(v, "u", 2) for v in Uj], A, FP)
+                    ar, p, [ar.input(v, "x", 4) for v in Xi], [ar.input(v, "x", 4) for v in Xj],
+                    [ar.input(v, "u", 4) for v in Ui], [ar.input(v, "u", 4) for v in Uj], A, FP)
                 fe_neg = [ar.neg(v) for v in fe]          # node j's word (saturating, as the model)
                 outs = fe + fe_neg + [v for v in (newA, newFP) if v is not None]
                 s_out = max(v.stage for v in outs)
@@ -355,11 +371,11 @@ class Core(wiring.Component):
             self._rom(m, add_mem, f"el{lane}_rom", rom_fields, S, cnt)
             fe_out = [ar.at(v, s_out) for v in fe]
             neg = [ar.at(v, s_out) for v in fe_neg]
-            rmw.append((make_bank(f"el{lane}_i", acc_width(ni)), ar.delay(iw, 1, s_out), ar.delay(is_, 1, s_out),
+            rmw.append((make_bank(f"el{lane}_i", acc_width(ni)), ar.delay(iw, 2, s_out), ar.delay(is_, 2, s_out),
                         fe_out, en, s_out, ar))
-            rmw.append((make_bank(f"el{lane}_j", acc_width(nj)), ar.delay(jw, 1, s_out), ar.delay(js, 1, s_out),
+            rmw.append((make_bank(f"el{lane}_j", acc_width(nj)), ar.delay(jw, 2, s_out), ar.delay(js, 2, s_out),
                         neg, en, s_out, ar))
-            drains.append(s_out + 2)
+            drains.append(s_out + RMW_WRITE + 1)
 
         # ---------------------------------------------------------------- pair lanes (topology, collisions)
         for prefix, kind, kernel in PAIR_KINDS:
@@ -383,6 +399,8 @@ class Core(wiring.Component):
                         vals = np.zeros(SP, np.int64)
                         vals[:len(items)] = arr
                         rom_fields.append((sig, vals))
+                    # stage 2: the ROM's node address registered; 4: node x, u registered
+                    w_, s_ = _registered(m, w_, f"{w_.name}_r"), _registered(m, s_, f"{s_.name}_r")
                     Xr, Ur = read_node(w_, s_, f"{prefix}{lane}_n{r}")
                     X_roles.append(Xr)
                     U_roles.append(Ur)
@@ -390,8 +408,8 @@ class Core(wiring.Component):
                     slots.append(s_)
                 self._rom(m, add_mem, f"{prefix}{lane}_rom", rom_fields, SP, cnt)
                 with ar:
-                    ins = [[ar.input(v, "x", 2) for v in X_roles[r]] for r in range(D + 1)]
-                    ins += [[ar.input(v, "u", 2) for v in U_roles[r]] for r in range(D + 1)]
+                    ins = [[ar.input(v, "x", 4) for v in X_roles[r]] for r in range(D + 1)]
+                    ins += [[ar.input(v, "u", 4) for v in U_roles[r]] for r in range(D + 1)]
                     gate, contribs = kernel(ar, p, *ins)
                     s_out = max(v.stage for _, v, _ in contribs)
                     cond = ar.delay(gate.cond.sig, gate.cond.stage, s_out)
@@ -402,8 +420,8 @@ class Core(wiring.Component):
                         if role == r:
                             per_k[k] = ar.at(v, s_out)
                     rmw.append((make_bank(f"{prefix}{lane}_r{r}", acc_width(pairs[items, r])),
-                                ar.delay(words[r], 1, s_out), ar.delay(slots[r], 1, s_out), per_k, en, s_out, ar))
-                drains.append(s_out + 2)
+                                ar.delay(words[r], 2, s_out), ar.delay(slots[r], 2, s_out), per_k, en, s_out, ar))
+                drains.append(s_out + RMW_WRITE + 1)
 
         # ---------------------------------------------------------------- RMW into the banks
         node_phase_valid = Signal()
@@ -412,19 +430,27 @@ class Core(wiring.Component):
         clear_addr = Signal(_bits(W) + 1)
         m.d.sync += [clear_en.eq(node_phase_valid & (cnt < W)), clear_addr.eq(cnt)]
         for ports, word, slot, vals, en, s_out, ar in rmw:
+            # element phase: read at s_out, the word registered at s_out + 1, added and written at
+            # s_out + 2 (RMW_WRITE); node phase: read, clear
             word1 = ar.delay(word, s_out, s_out + 1)
-            slot1 = ar.delay(slot, s_out, s_out + 1)
-            en1 = ar.delay(en, s_out, s_out + 1)
+            word2 = ar.delay(word, s_out, s_out + RMW_WRITE)
+            slot2 = ar.delay(slot, s_out, s_out + RMW_WRITE)
+            en2 = ar.delay(en, s_out, s_out + RMW_WRITE)
             for k in range(D):
-                v1 = ar.delay(vals[k], s_out, s_out + 1)
+                v2 = ar.delay(vals[k], s_out, s_out + RMW_WRITE)
                 for q in range(Q):
-                    rp, wp = ports[k][q]
-                    # element phase: read at s_out, add and write at s_out + 1; node phase: read, clear
+                    rp, wp, rd = ports[k][q]
+                    wen = en2 & (slot2 == q)
+                    # the item one behind read its word a cycle before this write: if it is the same
+                    # word, it adds to this sum (a register) instead of what it read
+                    fwd = Signal(name=f"{ar.name}_fwd_{k}_{q}")
+                    last = Signal.like(wp.data, name=f"{ar.name}_last_{k}_{q}")
+                    m.d.sync += [fwd.eq(wen & (word1 == word2)), last.eq(wp.data)]
                     m.d.comb += rp.addr.eq(Mux(phase[1], cnt, word))
                     m.d.comb += [
-                        wp.addr.eq(Mux(phase[1], clear_addr, word1)),
-                        wp.data.eq(Mux(phase[1], 0, rp.data + v1)),
-                        wp.en.eq(Mux(phase[1], clear_en, en1 & (slot1 == q))),
+                        wp.addr.eq(Mux(phase[1], clear_addr, word2)),
+                        wp.data.eq(Mux(phase[1], 0, Mux(fwd, last, rd) + v2)),
+                        wp.en.eq(Mux(phase[1], clear_en, wen)),
                     ]
 
         # ---------------------------------------------------------------- node lanes
@@ -443,26 +469,27 @@ class Core(wiring.Component):
                 arr = np.asarray(raw)[q::Q]
                 vals[:len(arr)] = arr
                 rom_fields.append((sig, vals))
-                return sig
-            ar = PipeArith(m, fmt, cfg.units, valid0, f"nd{q}", src, param_stage=1)
+                return _registered(m, sig, f"nd{q}_prm_{name}_r")
+            # stage 0: memories and ROM read; 2: x, u, parameters and bank words registered; 3: sum of the banks
+            ar = PipeArith(m, fmt, cfg.units, valid0, f"nd{q}", src, param_stage=2)
             all_arith.append(ar)
             Xq, Uq = [], []
             for k in range(D):
                 for mems, out in ((Xm, Xq), (Um, Uq)):
                     rp = mems[k][q].read_port(domain="sync")
                     m.d.comb += rp.addr.eq(cnt)
-                    out.append(rp.data)
-            # exact sum of the banks' slot q, registered: valid at stage 2
+                    out.append(_registered(m, rp.data, f"nd{q}_{'x' if mems is Xm else 'u'}{k}_r"))
+            # exact sum of the banks' slot q (their words registered first), registered: valid at stage 3
             F_elem = []
             for k in range(D):
-                total = _tree_sum([ports[k][q][0].data for _, ports, _ in banks])
+                total = _tree_sum([ports[k][q][2] for _, ports, _ in banks])
                 r = Signal(signed(max(w for _, _, w in banks) + _bits(len(banks)) + 1), name=f"nd{q}_facc{k}")
                 m.d.sync += r.eq(total)
                 F_elem.append(r)
             with ar:
-                X = [ar.input(v, "x", 1) for v in Xq]
-                U = [ar.input(v, "u", 1) for v in Uq]
-                Fe = [ar.input(v, "fe", 2) for v in F_elem]
+                X = [ar.input(v, "x", 2) for v in Xq]
+                U = [ar.input(v, "u", 2) for v in Uq]
+                Fe = [ar.input(v, "fe", 3) for v in F_elem]
                 newX, newU = node_kernel(ar, p, X, U, Fe, step_no, flags)
                 s_out = max(v.stage for v in newX + newU)
             self._rom(m, add_mem, f"nd{q}_rom", rom_fields, W, cnt)
@@ -543,7 +570,9 @@ class Core(wiring.Component):
 
         # ---------------------------------------------------------------- control
         drain_e = max(drains)
-        drain_n = n_drain + 1
+        # the last node's saturation counts reach sat_count SAT_COUNT_LATENCY cycles after its flags: the
+        # run ends (busy falls) only when every counter is final
+        drain_n = n_drain + 1 + SAT_COUNT_LATENCY
         C_E = max(cfg.element_slots, cfg.pair_slots, cfg.collision_slots)
         self.drain_elements, self.drain_nodes = drain_e, drain_n
         self.cycles_per_step = C_E + drain_e + W + drain_n

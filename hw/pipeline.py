@@ -8,13 +8,17 @@ saturation (hw/rtl_fixed.py). There is one description of the physics, and the t
 Schedule (as soon as possible, no stalls; II = 1):
 - every value carries the pipeline stage at which it is valid; an operation waits for its latest
   operand, earlier operands are delayed by shift registers (shared between users);
-- multiply: 2 stages (exact product register, then round/saturate register); add, subtract, sum of
-  terms, negate, convert, select: 1 stage; comparisons and boolean logic: 0 stages (combinational, folded
-  into the select that uses them); constants and per-phase values (step counter): no stage at all;
+- multiply: 1 + `product_latency` stages (hw/rtl_fixed.py): 2 when both operands fit one 18x18
+  multiplier (exact product register, then round/saturate register), 3 when one is wider (registered
+  DSP-sized partial products, their exact sum, then round/saturate); add, subtract, sum of terms, negate,
+  convert, select: 1 stage; comparisons and boolean logic: 0 stages (combinational, folded into the select
+  that uses them); constants and per-phase values (step counter): no stage at all;
 - function units (hw/rtl_funcunits.py) stream their operand in and their result out after their latency.
 A valid bit travels with every item. Each saturating operation yields a flag at its stage; it counts
 when the item is valid and, inside a gate (a condition such as "the node is below the floor"), when the
-gate is open: exactly the items the bit-true model evaluates after `np.flatnonzero`.
+gate is open: exactly the items the bit-true model evaluates after `np.flatnonzero`. Flags count one
+stage late (their gates registered first) and a lane's counts are summed per quantity into a register
+(`saturation_events`), two cycles after the stage of the flag (or of its gate, if later).
 """
 from __future__ import annotations
 
@@ -24,9 +28,8 @@ import numpy as np
 from amaranth.hdl import Const, Module, Mux, Signal, Value
 
 from .fixed import Saturations, Shape
-from .rtl_fixed import FixedValue, as_shape
+from .rtl_fixed import FixedValue, as_shape, pipelined_product, tree_sum
 
-MUL_LATENCY = 2
 OP_LATENCY = 1
 
 
@@ -235,9 +238,11 @@ class PipeArith:
 
     def mul(self, a, b, q) -> PV:
         s = self._s(a, b)
-        prod = self.fx(a, s) * self.fx(b, s)
-        p = self._reg(prod.raw, prod.raw.shape(), "prod")
-        return self._result(FixedValue(p, prod.f).round(self.shape(q)), q, s + 1, self._gate(a, b), "mul")
+        fa, fb = self.fx(a, s), self.fx(b, s)
+        p, lat = pipelined_product(self.m, fa.raw, fb.raw, self._name("prod"))
+        self.n_registers_bits += p.shape().width
+        rounded = FixedValue(p, fa.f + fb.f).round(self.shape(q))
+        return self._result(rounded, q, s + lat, self._gate(a, b), "mul")
 
     def add(self, a, b, q) -> PV:
         s = self._s(a, b)
@@ -316,16 +321,28 @@ class PipeArith:
 
     # ---- saturation accounting
     def saturation_events(self) -> list[tuple[str, Value]]:
-        """(quantity, count this cycle) of every saturation source, gated by valid and its gate."""
-        out = []
+        """(quantity, count) per quantity of this lane, in a register: each source's flag counts one
+        stage after the later of its own stage and its gate's (the gate, often a comparison that is
+        combinational at its stage, is registered first), when the item is valid and the gate open; the
+        counts are summed per quantity into a register, so that the core's sum over lanes and quantities
+        starts from flip-flops. An item's saturation at stage s (the later of flag and gate) is in this
+        register two cycles after the item was at stage s."""
+        per_q: dict[str, list[Value]] = {}
         for src in self.sat_sources:
-            st, flag = src.stage, src.flag
+            st = src.stage
             if src.gate is not None and src.gate.stage is not None and src.gate.stage > st:
                 st = src.gate.stage            # the gate is known later: count the flag then
-                flag = self.delay(flag, src.stage, st)
+            st += 1
+            flag = self.delay(src.flag, src.stage, st)
             en = self.valid_at(st)
             if src.gate is not None:
                 en = en & self.delay(src.gate.sig, src.gate.stage, st)
             w = flag.shape().width
-            out.append((src.quantity, Mux(en, flag, Const(0, w))))
+            per_q.setdefault(src.quantity, []).append(Mux(en, flag, Const(0, w)))
+        out = []
+        for q, terms in per_q.items():
+            total = tree_sum(terms)
+            r = Signal(total.shape(), name=f"{self.name}_sats_{q}")     # reset: 0 when nothing is valid
+            self.m.d.sync += r.eq(total)
+            out.append((q, r))
         return out

@@ -6,10 +6,13 @@ input the gateware's outputs (and saturation flags) equal what the model compute
 
 Both units are fully pipelined: they accept one input per clock cycle (initiation interval 1), never
 stall (both streams are `always_ready`), and deliver the result of an input accepted in cycle c in cycle
-c + `latency`; `o.valid` is `i.valid` delayed by `latency` cycles. Every multiplier is followed by a
-product register, and every rounding (a product plus 2^(s-1), then an arithmetic right shift by s) by
-another register, so that a synthesis tool can map the products onto DSP blocks with their pipeline
-registers. ROMs are `amaranth.lib.memory.Memory` instances with synchronous read ports (block RAM).
+c + `latency`; `o.valid` is `i.valid` delayed by `latency` cycles. Every product takes PRODUCT_LATENCY = 2
+cycles (hw/rtl_fixed.py `pipelined_product`: 18x18 multipliers, or rows summed in logic for an operand of
+at most 4 bits, each followed by a register, then the sum of the partial products in another register),
+and every rounding (a product plus 2^(s-1), then an arithmetic right shift by s) one more, so that no
+cycle holds a multiplier and a wide adder. ROMs are
+`amaranth.lib.memory.Memory` instances with synchronous read ports (block RAM) whose data is registered
+before any arithmetic.
 """
 from __future__ import annotations
 
@@ -20,8 +23,14 @@ from amaranth.lib.wiring import In, Out
 
 from .fixed import Shape
 from .funcunits import DamperTable, Rsqrt
+from .rtl_fixed import pipelined_product
 
-__all__ = ["RsqrtUnit", "DamperUnit"]
+__all__ = ["RsqrtUnit", "DamperUnit", "PRODUCT_LATENCY"]
+
+# cycles of every product in the units: a product wider than one 18x18 multiplier takes 2 (registered
+# partial products, then their sum: hw/rtl_fixed.py `pipelined_product`); narrower ones are delayed to 2
+# as well, so that a unit's latency does not depend on its formats
+PRODUCT_LATENCY = 2
 
 
 def _raw_shape(shape: Shape):
@@ -57,6 +66,15 @@ class _Pipe:
             value = self.reg(value, name=None if name is None else f"{name}_d{j}")
         return value
 
+    def product(self, a, b, latency: int, name=None):
+        """The exact product a * b after `latency` cycles (>= its `product_latency`): DSP-sized partial
+        products and their sum (hw/rtl_fixed.py `pipelined_product`), then delay registers, so that the
+        latency does not depend on the operands' widths."""
+        prod, lat = pipelined_product(self.m, a, b, name)
+        if lat > latency:
+            raise AssertionError(f"product {name} takes {lat} cycles, more than the {latency} scheduled")
+        return self.delay(prod, latency - lat)
+
 
 def _delay_valid(m, i_valid, o_valid, latency):
     """o_valid is i_valid delayed by `latency` registers (the units never stall)."""
@@ -85,8 +103,9 @@ class RsqrtUnit(wiring.Component):
         `value` is the model's output for x; `saturated` is 1 exactly when the model counts one
         saturation for this element (x <= 0, or a result above the output format's maximum).
     latency : int
-        ``6 + 6 * model.newton_steps`` cycles from an accepted input to its output: 3 cycles of
-        normalisation, 1 of seed ROM, 6 per Newton step, 2 of denormalisation.
+        ``7 + 9 * model.newton_steps`` cycles from an accepted input to its output: 3 cycles of
+        normalisation, 1 of seed ROM, 1 of ROM output register, 9 per Newton step (3 products of
+        PRODUCT_LATENCY = 2 cycles, 3 roundings of 1), 2 of denormalisation.
 
     Algorithm (the model's steps 1-5; N = newton_steps; each cycle below ends in a register, and an
     input accepted in cycle 0 is in the register of cycle j after j clock edges):
@@ -100,21 +119,29 @@ class RsqrtUnit(wiring.Component):
       (xn + 2^(r-1)) >> r, r = Wn + d - M, clamped to 2^M - 1 (the model's shift_round of x: xn's
       low Wn - n bits are zero);
     - cycle 4: seed ROM (3 * 2^(seed_bits-2) words of Y + 2 bits, `seed_table`, synchronous read) at
-      address (m >> (M - seed_bits)) - 2^(seed_bits-2): y = y0;
-    - N Newton steps of 6 cycles each: product y*y; y2 = (y*y + 2^(Y-1)) >> Y; product m*y2;
-      t = 3 2^Y - ((m*y2 + 2^(M-1)) >> M), formed in one subtraction as
-      (3 2^(Y+M) + 2^(M-1) - 1 - m*y2) >> M (an identity of floors); product y*t;
-      y = (y*t + 2^Y) >> (Y + 1);
-    - cycle 5 + 6N: the right-shift candidate (2y) >> rs, the left-shift candidate y << ls and whether
+      address (m >> (M - seed_bits)) - 2^(seed_bits-2);
+    - cycle 5: y = y0, the ROM word registered (a block RAM's clock-to-output delay leaves no room for a
+      multiplier in the same cycle);
+    - N Newton steps of 9 cycles each: product y*y (2 cycles); y2 = (y*y + 2^(Y-1)) >> Y; product m*y2
+      (2 cycles); t = 3 2^Y - ((m*y2 + 2^(M-1)) >> M), formed in one subtraction as
+      (3 2^(Y+M) + 2^(M-1) - 1 - m*y2) >> M (an identity of floors); product y*t (2 cycles);
+      y = (y*t + 2^Y) >> (Y + 1). Each product is exact (hw/rtl_fixed.py `pipelined_product`): operands
+      wider than one 18x18 multiplier are split into limbs (18 bits from the LSB, all unsigned) whose
+      partial products (a multiplier each, or rows in logic for a limb of at most 4 bits) are registered
+      in the first cycle and summed in the second; a product that fits one multiplier is registered in
+      the first cycle and delayed in the second;
+    - cycle 6 + 9N: the right-shift candidate (2y) >> rs, the left-shift candidate y << ls and whether
       it exceeds max_raw;
-    - cycle 6 + 6N: ((2y >> rs) + 1) >> 1 (= (y + 2^(rs-1)) >> rs for rs >= 1, y for rs = 0); select the
+    - cycle 7 + 9N: ((2y >> rs) + 1) >> 1 (= (y + 2^(rs-1)) >> rs for rs >= 1, y for rs = 0); select the
       left- or right-shift result; saturate into out_shape: x <= 0 or a result above max_raw gives
       max_raw with `saturated` = 1.
 
     Throughput: one input per cycle, no stalls. Widths: y is UQ(2, Y), y2 and h are UQ(3, Y), t is
     UQ(2, Y) as in the model (they hold because the seed's relative error is below 1/8, checked at
-    construction). Multipliers: (Y+2) x (Y+2), M x (Y+3), (Y+2) x (Y+2) bits per Newton step (36 x 36,
-    34 x 37, 36 x 36 for a 32-bit output with 2 guard bits).
+    construction). Products: (Y+2) x (Y+2), M x (Y+3), (Y+2) x (Y+2) bits per Newton step: 22 x 22,
+    20 x 23, 22 x 22 for an 18-bit output with 2 guard bits (1, 2 and 1 multipliers; the partial products
+    of 4-bit and narrower top limbs are rows in logic), 36 x 36, 34 x 37, 36 x 36 for a 32-bit output
+    (4 multipliers each).
     """
 
     def __init__(self, model: Rsqrt):
@@ -125,7 +152,7 @@ class RsqrtUnit(wiring.Component):
         if model.seed_relative_error() >= 0.125:
             raise ValueError(f"RsqrtUnit: seed error {model.seed_relative_error():g} too large for the "
                              f"fixed internal formats")
-        self.latency = 6 + 6 * model.newton_steps
+        self.latency = 7 + (3 + 3 * PRODUCT_LATENCY) * model.newton_steps
         out = model.out_shape
         super().__init__({
             "i": In(stream.Signature(_raw_shape(model.in_shape), always_ready=True)),
@@ -189,28 +216,27 @@ class RsqrtUnit(wiring.Component):
         m.submodules.seed_rom = rom
         rp = rom.read_port(domain="sync")
         m.d.comb += rp.addr.eq(m3[M - sb:] - md.idx_lo)
-        y = rp.data
-        mm, rs_, ls_, pos_ = p.reg(m3, name="m4"), p.reg(rs3), p.reg(ls3), p.reg(pos3)
+        # ---- cycle 5: the ROM word in a register (block RAM clock-to-output is slow: no arithmetic after it)
+        y = p.reg(rp.data, name="y0")
+        mm, rs_, ls_, pos_ = [p.delay(s_, 2) for s_ in (m3, rs3, ls3, pos3)]
 
-        # ---- Newton steps, 6 cycles each
+        # ---- Newton steps, 3 + 3 PRODUCT_LATENCY cycles each
         T_CONST = (3 << (Y + M)) + (1 << (M - 1)) - 1
         for step in range(md.newton_steps):
             side = [mm, rs_, ls_, pos_]
-            pyy = p.reg(y * y, unsigned(2 * Y + 4), name=f"n{step}_yy")
-            ya = p.reg(y)
+            pyy = p.product(y, y, PRODUCT_LATENCY, name=f"n{step}_yy")
             y2 = p.reg((pyy + (1 << (Y - 1))).shift_right(Y), unsigned(Y + 3), name=f"n{step}_y2")
-            yb = p.reg(ya)
-            side = [p.delay(s_, 2) for s_ in side]
-            pmh = p.reg(side[0] * y2, unsigned(M + Y + 3), name=f"n{step}_my2")
-            yc = p.reg(yb)
+            y_ = p.delay(y, PRODUCT_LATENCY + 1)
+            side = [p.delay(s_, PRODUCT_LATENCY + 1) for s_ in side]
+            pmh = p.product(side[0], y2, PRODUCT_LATENCY, name=f"n{step}_my2")
             # t = 3 2^Y - floor((p + 2^(M-1)) / 2^M) = floor((3 2^(Y+M) + 2^(M-1) - 1 - p) / 2^M)
             t = p.reg((Const(T_CONST, unsigned(_bits(T_CONST))) - pmh).shift_right(M), unsigned(Y + 2),
                       name=f"n{step}_t")
-            yd = p.reg(yc)
-            side = [p.delay(s_, 2) for s_ in side]
-            pyt = p.reg(yd * t, unsigned(2 * Y + 4), name=f"n{step}_yt")
+            y_ = p.delay(y_, PRODUCT_LATENCY + 1)
+            side = [p.delay(s_, PRODUCT_LATENCY + 1) for s_ in side]
+            pyt = p.product(y_, t, PRODUCT_LATENCY, name=f"n{step}_yt")
             y = p.reg((pyt + (1 << Y)).shift_right(Y + 1), unsigned(Y + 2), name=f"n{step}_y")
-            mm, rs_, ls_, pos_ = [p.delay(s_, 2) for s_ in side]
+            mm, rs_, ls_, pos_ = [p.delay(s_, PRODUCT_LATENCY + 1) for s_ in side]
 
         # ---- denormalise and saturate (2 cycles)
         rr = p.reg((y.shift_left(1) >> rs_), unsigned(Y + 3), name="dn_r")
@@ -247,21 +273,26 @@ class DamperUnit(wiring.Component):
         The model's three outputs and the number of saturations it counts for this element (c2 and inv
         interpolations that use a clipped table entry, c12 saturating).
     latency : int
-        6 cycles from an accepted input to its output.
+        9 cycles from an accepted input to its output (5 + 2 products of PRODUCT_LATENCY = 2 cycles).
 
-    Algorithm (the model's steps 1-5; every stage ends in a register):
+    Algorithm (the model's steps 1-5; every stage ends in a register; products are exact,
+    hw/rtl_fixed.py `pipelined_product`: operands wider than one 18x18 multiplier are split into limbs
+    whose partial products are registered in the first cycle and summed in the second, a product that fits
+    one multiplier is registered in the first cycle and delayed in the second):
 
-    - cycle 1: product f * K_raw; comparisons f <= F1, f >= F2;
-    - cycle 2: position pos in UQ(S, P): for pos_shift s > 0, q = f K_raw - OFF + 2^(s-1) in one
+    - cycles 1 and 2: product f * K_raw; comparisons f <= F1, f >= F2 (in cycle 1, then delayed);
+    - cycle 3: position pos in UQ(S, P): for pos_shift s > 0, q = f K_raw - OFF + 2^(s-1) in one
       subtraction and pos = clamp(q >> s, 0, 2^(S+P)); for s <= 0, pos = min(D << -s, 2^(S+P)) with
       D = max(f K_raw - OFF, 0); then 0 for f <= F1, 2^(S+P) for f >= F2;
-    - cycle 3: idx = pos >> P, frac = pos mod 2^P (idx = 2^S - 1, frac = 2^P at the end point 2^(S+P));
+    - cycle 4: idx = pos >> P, frac = pos mod 2^P (idx = 2^S - 1, frac = 2^P at the end point 2^(S+P));
       two ROMs (c2, inv) of 2^S words, read synchronously at idx. Word j holds tab[j], the difference
       tab[j+1] - tab[j] and the clip flags of entries j and j+1;
-    - cycle 4: products frac * (tab[idx+1] - tab[idx]); saturation flags
-      clip[idx] | (clip[idx+1] & frac != 0);
-    - cycle 5: value = tab[idx] + ((product + 2^(P-1)) >> P) for both tables;
-    - cycle 6: c12 = c2 + c1_raw, saturated into c2_shape (counted).
+    - cycle 5: the ROM words registered (a block RAM's clock-to-output delay leaves no room for a
+      multiplier in the same cycle);
+    - cycles 6 and 7: products frac * (tab[idx+1] - tab[idx]); saturation flags
+      clip[idx] | (clip[idx+1] & frac != 0) (in cycle 6, then delayed);
+    - cycle 8: value = tab[idx] + ((product + 2^(P-1)) >> P) for both tables;
+    - cycle 9: c12 = c2 + c1_raw, saturated into c2_shape (counted).
 
     Throughput: one input per cycle, no stalls.
     """
@@ -271,7 +302,7 @@ class DamperUnit(wiring.Component):
             raise TypeError(f"DamperUnit needs a hw.funcunits.DamperTable model, got "
                             f"{type(model).__name__} ({model!r})")
         self.model = model
-        self.latency = 6
+        self.latency = 5 + 2 * PRODUCT_LATENCY
         c2s, invs = _raw_shape(model.c2_shape), _raw_shape(model.inv_shape)
         super().__init__({
             "i": In(stream.Signature(_raw_shape(model.f_shape), always_ready=True)),
@@ -301,15 +332,16 @@ class DamperUnit(wiring.Component):
 
         _delay_valid(m, self.i.valid, self.o.valid, self.latency)
 
-        # ---- cycle 1: product and the flat pieces
+        # ---- cycles 1 and 2: product and the flat pieces
         f = self.i.payload
-        prod = p.reg(f * md.K_raw, name="fk")
+        prod = p.product(f, md.K_raw, PRODUCT_LATENCY, name="fk")
         # the product as a signed value (zero-extended when f is unsigned), for the signed subtraction
         prod_s = prod if prod.shape().signed else Cat(prod, Const(0, 1)).as_signed()
-        low = p.reg(f <= md.F1, name="low")
-        high = p.reg(f >= md.F2 if md.F2 <= fs.max_raw else Const(0), unsigned(1), name="high")
+        low = p.delay(p.reg(f <= md.F1, name="low"), PRODUCT_LATENCY - 1)
+        high = p.delay(p.reg(f >= md.F2 if md.F2 <= fs.max_raw else Const(0), unsigned(1), name="high"),
+                       PRODUCT_LATENCY - 1)
 
-        # ---- cycle 2: position
+        # ---- cycle 3: position
         s = md.pos_shift
         pos_i = Signal(range(cap + 1))
         if s > 0:
@@ -336,11 +368,11 @@ class DamperUnit(wiring.Component):
                 m.d.comb += pos_i.eq(dd[:max(S + P + s, 0)].as_unsigned().shift_left(-s))
         pos = p.reg(Mux(low, 0, Mux(high, cap, pos_i)), unsigned(S + P + 1), name="pos")
 
-        # ---- cycle 3: table ROMs at idx
+        # ---- cycle 4: table ROMs at idx
         end = pos[S + P]
         idx = Mux(end, (1 << S) - 1, pos[P:S + P])
         frac = Mux(end, 1 << P, pos[:P])
-        frac3 = p.reg(frac, unsigned(P + 1), name="frac")
+        frac5 = p.delay(frac, 2, name="frac")
         rows = {}
         for key, tab, clip, shape in (("c2", md.tab_c2, md.clip_c2, md.c2_shape),
                                       ("inv", md.tab_inv, md.clip_inv, md.inv_shape)):
@@ -349,19 +381,21 @@ class DamperUnit(wiring.Component):
             m.submodules[f"rom_{key}"] = rom
             rp = rom.read_port(domain="sync")
             m.d.comb += rp.addr.eq(idx)
-            rows[key] = rp.data
+            # ---- cycle 5: the ROM word in a register (no arithmetic after a block RAM's output)
+            rows[key] = data.View(layout, p.reg(rp.data.as_value(), name=f"{key}_row"))
 
-        # ---- cycles 4 and 5: interpolation
+        # ---- cycles 6 to 8: interpolation
         vals, sats = {}, {}
         for key, shape in (("c2", md.c2_shape), ("inv", md.inv_shape)):
             row = rows[key]
-            pr = p.reg(frac3 * row.delta, name=f"{key}_prod")
-            lo = p.reg(row.lo, name=f"{key}_lo")
-            sat = p.reg(row.clip_lo | (row.clip_hi & (frac3 != 0)), name=f"{key}_sat")
+            pr = p.product(frac5, row.delta, PRODUCT_LATENCY, name=f"{key}_prod")
+            lo = p.delay(row.lo, PRODUCT_LATENCY, name=f"{key}_lo")
+            sat = p.delay(p.reg(row.clip_lo | (row.clip_hi & (frac5 != 0)), name=f"{key}_sat"),
+                          PRODUCT_LATENCY - 1)
             vals[key] = p.reg(lo + (pr + (1 << (P - 1))).shift_right(P), _raw_shape(shape), name=key)
             sats[key] = p.reg(sat)
 
-        # ---- cycle 6: c12 = c1 + c2, saturated
+        # ---- cycle 9: c12 = c1 + c2, saturated
         c12 = vals["c2"] + md.c1_raw
         c12_ovf = (c12 > c2_shape.max_raw) | (c12 < c2_shape.min_raw)
         c12_sat = Mux(c12 > c2_shape.max_raw, c2_shape.max_raw,

@@ -1,13 +1,16 @@
 """Fixed-point values for Amaranth (hw/rtl_fixed.py) equal the bit-true arithmetic (hw/fixed.py)."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
-from amaranth.hdl import Module, Signal
+from amaranth.back import rtlil
+from amaranth.hdl import Module, Signal, signed, unsigned
 from amaranth.sim import Simulator
 
 from hw.fixed import SQ, UQ, Saturations, add, mul
-from hw.rtl_fixed import Const, FixedValue, as_shape
+from hw.rtl_fixed import DSP_BITS, Const, FixedValue, as_shape, pipelined_product, product_latency
 
 CASES = 400
 
@@ -95,3 +98,88 @@ def test_reshape_refuses_to_drop_bits():
         v.reshape(4)
     with pytest.raises(TypeError, match="fixed-point Shape"):
         FixedValue.of("SQ(2, 8)", Signal(10))
+
+
+# (a shape, b shape, latency, multipliers): one 18x18 multiplier (signed, unsigned, mixed with a 17-bit
+# unsigned operand), or DSP-sized partial products, those with a limb of at most 4 bits formed in logic
+# (an 18-bit unsigned operand in a signed product is 19 bits: limbs of 17 and 2 bits; the 1/sqrt unit's
+# 22 x 22 and 20 x 23 unsigned products, 18-bit limbs and short top limbs; its 36 x 36 and 34 x 37 of the
+# wide preset; 36-bit signed operands: 17-bit limbs and a signed 2-bit one)
+PRODUCTS = [(signed(18), signed(18), 1, 1), (unsigned(18), unsigned(18), 1, 1),
+            (unsigned(17), signed(18), 1, 1), (unsigned(18), signed(18), 2, 1),
+            (unsigned(22), unsigned(22), 2, 1), (unsigned(20), unsigned(23), 2, 2),
+            (unsigned(36), unsigned(36), 2, 4), (unsigned(34), unsigned(37), 2, 4),
+            (signed(25), signed(9), 2, 2), (signed(36), signed(36), 2, 4), (unsigned(40), signed(18), 2, 3),
+            # narrow operands: rows in logic, no multiplier
+            (signed(18), signed(4), 1, 0), (unsigned(3), unsigned(18), 1, 0), (signed(1), signed(18), 1, 0),
+            (signed(22), signed(4), 2, 0),
+            # constant operands (int): 2^8 * 78125 (the damper's scale in press-2d) fits as 78125, 17 bits;
+            # an odd 25-bit constant does not; -3 * 2^20 is a signed 3-bit -3, so rows
+            (signed(18), 20000000, 1, 1), (signed(18), 20000001, 2, 2), (signed(18), -3 << 20, 1, 0)]
+
+
+@pytest.mark.parametrize("sa, sb, latency, mults", PRODUCTS, ids=[f"{a}x{b}" for a, b, _, _ in PRODUCTS])
+def test_pipelined_product_is_exact_with_its_latency(sa, sb, latency, mults):
+    """Every product equals a * b, `latency` cycles after its operands; every multiplier of the RTLIL
+    has operands of at most 18 bits, and there are as many as the limbs make."""
+    a = Signal(sa)
+    const = isinstance(sb, int)
+    b = sb if const else Signal(sb)
+    m = Module()
+    p, lat = pipelined_product(m, a, b, "p")
+    assert lat == latency
+    if not const:
+        assert lat == product_latency(sa, sb)
+    assert p.shape() == (a * b).shape()
+    pv = Signal(p.shape())
+    m.d.comb += pv.eq(p)
+    p = pv
+    text = rtlil.convert(m, ports=[a, p] if const else [a, b, p])
+    cells = text.split("cell $mul")[1:]
+    assert len(cells) == mults
+    for cell in cells:
+        for w in re.findall(r"parameter \\[AB]_WIDTH (\d+)", cell.split("end", 1)[0]):
+            assert int(w) <= DSP_BITS
+
+    def lim(s):
+        return (-(1 << (s.width - 1)), (1 << (s.width - 1)) - 1) if s.signed else (0, (1 << s.width) - 1)
+    rng = np.random.default_rng(3)
+    (alo, ahi) = lim(sa)
+    av = [alo, ahi, alo, ahi, 0, 1] + [int(v) for v in rng.integers(alo, ahi, CASES, endpoint=True)]
+    if const:
+        bv = [sb] * len(av)
+    else:
+        blo, bhi = lim(sb)
+        bv = [blo, bhi, bhi, blo, 1, 0] + [int(v) for v in rng.integers(blo, bhi, CASES, endpoint=True)]
+    got = []
+
+    async def tb(ctx):
+        for c in range(len(av) + latency):
+            if c < len(av):
+                ctx.set(a, av[c])
+                if not const:
+                    ctx.set(b, bv[c])
+            await ctx.tick()
+            if c + 1 >= latency:
+                got.append(ctx.get(p))
+    sim = Simulator(m)
+    sim.add_clock(1e-8)
+    sim.add_testbench(tb)
+    sim.run()
+    assert got[:len(av)] == [x * y for x, y in zip(av, bv)]
+
+
+@pytest.mark.parametrize("raw_shape", [signed(3), signed(4), signed(7), unsigned(3), unsigned(4), unsigned(7)])
+@pytest.mark.parametrize("dst", [SQ(2, 2), UQ(2, 2)], ids=str)
+def test_saturate_clamps_every_raw_value(raw_shape, dst):
+    """saturate (range tests on raw's high bits) equals a clamp to [min_raw, max_raw], exhaustively, for
+    raw values narrower than, as wide as and wider than the format, signed and unsigned."""
+    s = Signal(raw_shape)
+    val, flag = FixedValue(s, dst.f).saturate(dst)
+    out, fl = Signal(as_shape(dst)), Signal()
+    lo, hi = ((-(1 << (raw_shape.width - 1)), 1 << (raw_shape.width - 1)) if raw_shape.signed
+              else (0, 1 << raw_shape.width))
+    xs = list(range(lo, hi))
+    got = _run_comb([s], [(out, val.raw), (fl, flag)], [[x] for x in xs])
+    assert [int(v) for v in got[:, 0]] == [min(max(x, dst.min_raw), dst.max_raw) for x in xs]
+    assert [int(v) for v in got[:, 1]] == [int(not dst.min_raw <= x <= dst.max_raw) for x in xs]

@@ -120,7 +120,7 @@ def _rsqrt_count(model):
 
 def _check_rsqrt(model: Rsqrt, x, idle=0.0, seed=0, expect_sat=None):
     dut = RsqrtUnit(model)
-    assert dut.latency == 6 + 6 * model.newton_steps
+    assert dut.latency == 7 + 9 * model.newton_steps
     sat = Saturations()
     ref = model(x, sat)
     hw = _simulate(dut, x, ("value", "saturated"), idle=idle, seed=seed)
@@ -183,7 +183,7 @@ def _damper_count(model):
 
 def _check_damper(model: DamperTable, x, idle=0.0, seed=0):
     dut = DamperUnit(model)
-    assert dut.latency == 6
+    assert dut.latency == 9
     sat = Saturations()
     c2, c12, inv = model(x, sat)
     hw = _simulate(dut, x, ("c2", "c12", "inv", "saturations"), idle=idle, seed=seed)
@@ -349,7 +349,7 @@ def test_constructor_rejects_wrong_models():
 def test_signatures_and_conversion():
     rs = Rsqrt(SQ(6, 8), UQ(4, 10), seed_bits=6, newton_steps=2)
     u = RsqrtUnit(rs)
-    assert u.latency == 18
+    assert u.latency == 25                 # 7 + 9 * 2 Newton steps
     assert u.i.payload.shape() == signed(14)
     assert u.o.payload.value.shape() == unsigned(14)
     assert u.o.payload.saturated.shape() == unsigned(1)
