@@ -16,6 +16,7 @@ from .fixed import Saturations
 from .formats import PRESETS, FormatSet, derive
 from .units import HardwareUnits
 
+FRICTION_SCALE_HEADROOM = 2.0 ** 8
 RSQRT_INPUTS = {"inv_l": "l2", "tinv": "tl2", "tinv2": "tl4", "finv": "fmag2", "cinv": "cl2", "cinv2": "cl4"}
 
 
@@ -44,6 +45,10 @@ def range_analysis(sys: System, params: Params, units: HardwareUnits, steps: int
     step(probe, float_state(sys, units, sys.x0, sys.v0, sys.a0), params)
     for q, v in probe.peak.items():
         peaks.setdefault(q, v)
+    # the 3D friction scale 1/|k_f v_t| is formed only while sliding, which a scene at rest never does in
+    # the probe: its range is then that of 1/sqrt(peak |k_f v_t|^2), with headroom for smaller inputs
+    if "fmag2" in peaks and "finv" not in peaks:
+        peaks["finv"] = FRICTION_SCALE_HEADROOM / np.sqrt(max(peaks["fmag2"], np.finfo(float).tiny))
     if params.damper is not None:      # the tables span the whole curve, whatever the run visited
         dp = params.damper
         peaks["c2"] = max(peaks.get("c2", 0.0), dp.c1 + dp.c_max)

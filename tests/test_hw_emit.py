@@ -86,3 +86,19 @@ def test_lanes_are_parameters(tmp_path):
     man = json.loads((tmp_path / "manifest.json").read_text())
     assert man["lanes"]["element_lanes_P"] == 2 and man["lanes"]["node_lanes_Q"] == 3
     assert sum(m["name"].startswith("acc_el1") for m in man["memories"]) > 0
+
+
+def test_full_featured_3d_build_has_every_unit_even_with_friction_that_never_slides():
+    """The full-feature yardstick of a 3D scene at rest: its floor friction never slides in the range
+    run, yet its 1/|k_f v_t| unit must get a format and the core must elaborate (it once raised KeyError)."""
+    import dataclasses
+    from hw import emit
+    from hw.bittrue import BitTrue
+    from hw.core import CoreConfig, schedule
+    from sim.cli import _load_system
+    base = dataclasses.replace(_load_system("gravity-3d-linear"), n_steps=20)
+    bt = BitTrue(emit.full_featured(base), "narrow")
+    assert {"finv", "cinv2", "tinv2", "damper"} <= set(bt.ar.units)
+    assert bt.formats["finv"].width == bt.formats.preset.operand          # an operand like any other
+    timing = schedule(CoreConfig.of(bt))
+    assert timing["cycles_per_step"] > base.n_elements
