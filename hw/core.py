@@ -28,7 +28,8 @@ Node state (x, u per dimension) lives in memories of ceil(N/Q) words, one memory
 element lanes read both end nodes through their own read ports.
 
 Host interface (`host`): word addresses, 32-bit data; writes take effect at once, reads return
-`r_data` with `r_valid` exactly 2 cycles after `r_en`. Writes to memories while busy are ignored.
+`r_data` with `r_valid` exactly 2 cycles after `r_en`. Writes to memories while busy are ignored, and
+memory reads while busy return undefined words: the host shares the pipeline's read ports (block RAM).
 
   0x000000  ID (read): 0x52484530 ("RHE0")
   0x000001  RUN: write n > 0 to run n steps (busy at once); read: steps left
@@ -325,7 +326,8 @@ class Core(wiring.Component):
             # the node memories) and element state registered; 4: node x, u registered
             ar = PipeArith(m, fmt, cfg.units, valid0, f"el{lane}", src, param_stage=2)
             all_arith.append(ar)
-            iw, is_, jw, js = (Signal(_bits(W) + 1, name=f"el{lane}_{n}") for n in ("iw", "is", "jw", "js"))
+            iw, jw = (Signal(_bits(W), name=f"el{lane}_{n}") for n in ("iw", "jw"))
+            is_, js = (Signal(_bits(Q), name=f"el{lane}_{n}") for n in ("is", "js"))
             ni, nj = p.i[items], p.j[items]
             for sig, arr in ((iw, ni // Q), (is_, ni % Q), (jw, nj // Q), (js, nj % Q)):
                 vals = np.zeros(S, np.int64)
@@ -350,6 +352,8 @@ class Core(wiring.Component):
                 FP_wp = FP_mem.write_port()
                 FP_rp = FP_mem.read_port(domain="sync")
                 m.d.comb += FP_rp.addr.eq(cnt)
+            else:
+                FP_rp = None
             with ar:
                 A = ar.input(_registered(m, A_rp.data, f"el{lane}_a_r"), "a", 2)
                 FP = (ar.input(_registered(m, FP_rp.data, f"el{lane}_fp_r"), "force", 2) if has_fp
@@ -366,7 +370,8 @@ class Core(wiring.Component):
                 m.d.comb += [A_wp.addr.eq(slot_at), A_wp.data.eq(ar.at(newA, s_out)), A_wp.en.eq(en)]
             if has_fp:
                 m.d.comb += [FP_wp.addr.eq(slot_at), FP_wp.data.eq(ar.at(newFP, s_out)), FP_wp.en.eq(en)]
-            self.elem_state_mems.append((A_mem, FP_mem, A_wp if has_a else None, FP_wp if has_fp else None))
+            self.elem_state_mems.append((A_mem, FP_mem, A_wp if has_a else None, FP_wp if has_fp else None,
+                                         A_rp, FP_rp))
             # the ROM of this lane: node words/slots and per-element parameters
             self._rom(m, add_mem, f"el{lane}_rom", rom_fields, S, cnt)
             fe_out = [ar.at(v, s_out) for v in fe]
@@ -393,8 +398,8 @@ class Core(wiring.Component):
                 X_roles, U_roles, words, slots = [], [], [], []
                 for r in range(D + 1):
                     nodes = pairs[items, r]
-                    w_ = Signal(_bits(W) + 1, name=f"{prefix}{lane}_w{r}")
-                    s_ = Signal(_bits(Q) + 1, name=f"{prefix}{lane}_s{r}")
+                    w_ = Signal(_bits(W), name=f"{prefix}{lane}_w{r}")
+                    s_ = Signal(_bits(Q), name=f"{prefix}{lane}_s{r}")
                     for sig, arr in ((w_, nodes // Q), (s_, nodes % Q)):
                         vals = np.zeros(SP, np.int64)
                         vals[:len(items)] = arr
@@ -456,6 +461,7 @@ class Core(wiring.Component):
         # ---------------------------------------------------------------- node lanes
         flags = _node_flags(p)
         node_outs = []
+        node_lane_reads = {}          # (node field, slot): the node lane's read port, shared with host reads
         n_drain = 0
         last_fill = cfg.n_nodes - (W - 1) * Q
         for q in range(Q):
@@ -478,6 +484,7 @@ class Core(wiring.Component):
                 for mems, out in ((Xm, Xq), (Um, Uq)):
                     rp = mems[k][q].read_port(domain="sync")
                     m.d.comb += rp.addr.eq(cnt)
+                    node_lane_reads[k + D * (mems is Um), q] = rp
                     out.append(_registered(m, rp.data, f"nd{q}_{'x' if mems is Xm else 'u'}{k}_r"))
             # exact sum of the banks' slot q (their words registered first), registered: valid at stage 3
             F_elem = []
@@ -523,22 +530,21 @@ class Core(wiring.Component):
         r_en1, r_addr1 = Signal(), Signal(ADDR_BITS)
         m.d.sync += [r_en1.eq(host.r_en), r_addr1.eq(h_addr)]
         node_read = []
-        for fi, mems in enumerate(node_fields):
-            for q in range(Q):
-                rp = mems[q].read_port(domain="sync")
+        for (fi, q), rp in node_lane_reads.items():
+            with m.If(~busy):               # node lane q's read port, the host's while idle
                 m.d.comb += rp.addr.eq(h_word)
-                node_read.append((fi, q, rp.data))
+            node_read.append((fi, q, rp.data))
         e_off = h_addr - ELEM_BASE
         pbits, lbits = cfg.pos_bits, cfg.lane_bits
         e_field = e_off >> (pbits + lbits)
         e_pos, e_lane = e_off[:pbits], e_off[pbits:pbits + lbits]
         elem_read = []
-        for lane, (A_mem, FP_mem, A_wp, FP_wp) in enumerate(self.elem_state_mems):
-            for fi, (mem, wp) in enumerate(((A_mem, A_wp), (FP_mem, FP_wp))):
+        for lane, (A_mem, FP_mem, A_wp, FP_wp, A_rp, FP_rp) in enumerate(self.elem_state_mems):
+            for fi, (mem, wp, rp) in enumerate(((A_mem, A_wp, A_rp), (FP_mem, FP_wp, FP_rp))):
                 if mem is None:
                     continue
-                rp = mem.read_port(domain="sync")
-                m.d.comb += rp.addr.eq(e_pos)
+                with m.If(~busy):           # the element lane's read port, the host's while idle
+                    m.d.comb += rp.addr.eq(e_pos)
                 elem_read.append((fi, lane, rp.data))
                 if wp is None:          # no a-state in the pipeline: the host still loads a
                     wp = mem.write_port()
@@ -645,7 +651,7 @@ class Core(wiring.Component):
 
     def _host_elem_writes(self, m, busy, host, h_elem, e_field, e_lane, e_pos):
         """Element state write ports: the pipeline while busy, the host while idle."""
-        for lane, (A_mem, FP_mem, A_wp, FP_wp) in enumerate(self.elem_state_mems):
+        for lane, (A_mem, FP_mem, A_wp, FP_wp, _, _) in enumerate(self.elem_state_mems):
             for fi, wp in enumerate((A_wp, FP_wp)):
                 if wp is None:
                     continue
