@@ -16,11 +16,11 @@ One time step runs in two phases:
 
 Force accumulation without read-after-write hazards, by construction: every lane owns one accumulator
 bank per role (element: node i, node j; pair: the vertex and each facet vertex), a simple dual-port
-memory read, its word registered, and written back two cycles after the read (RMW_WRITE). Its read port
-is transparent to its write port, so an element that reads a node word in the cycle in which the element
-two ahead writes it sees the new sum; the element just ahead writes one cycle after this one's read, so
-its sum is forwarded from a register instead (when both address the same word). Any element order is
-correct, and no two lanes ever share a bank. The node pipeline adds the banks exactly (integers wide
+memory read, its word registered, and written back two cycles after the read (RMW_WRITE). The two items
+just ahead write in the cycle of this one's read and in the next, which the read cannot see: when either
+addressed the same word, the later one's sum is taken from a register instead of the word read. The read
+port is not transparent (a block RAM's cross-port transparency costs soft bypass logic after its slow
+output). Any element order is correct, and no two lanes ever share a bank. The node pipeline adds the banks exactly (integers wide
 enough for the largest number of contributions any node receives), so the result equals the bit-true
 model's exact scatter, whatever the order.
 
@@ -292,7 +292,7 @@ class Core(wiring.Component):
             for k in range(D):
                 for q in range(Q):
                     wp = mems[k][q].write_port()
-                    rp = mems[k][q].read_port(domain="sync", transparent_for=(wp,))
+                    rp = mems[k][q].read_port(domain="sync")
                     ports[k][q] = (rp, wp, _registered(m, rp.data, f"acc_{name}_{k}_{q}_r"))
             banks.append((name, ports, width))
             return ports
@@ -439,6 +439,7 @@ class Core(wiring.Component):
             # s_out + 2 (RMW_WRITE); node phase: read, clear
             word1 = ar.delay(word, s_out, s_out + 1)
             word2 = ar.delay(word, s_out, s_out + RMW_WRITE)
+            word3 = ar.delay(word, s_out, s_out + RMW_WRITE + 1)
             slot2 = ar.delay(slot, s_out, s_out + RMW_WRITE)
             en2 = ar.delay(en, s_out, s_out + RMW_WRITE)
             for k in range(D):
@@ -446,15 +447,20 @@ class Core(wiring.Component):
                 for q in range(Q):
                     rp, wp, rd = ports[k][q]
                     wen = en2 & (slot2 == q)
-                    # the item one behind read its word a cycle before this write: if it is the same
-                    # word, it adds to this sum (a register) instead of what it read
-                    fwd = Signal(name=f"{ar.name}_fwd_{k}_{q}")
-                    last = Signal.like(wp.data, name=f"{ar.name}_last_{k}_{q}")
-                    m.d.sync += [fwd.eq(wen & (word1 == word2)), last.eq(wp.data)]
+                    # the item one behind (at s_out + 1 now) and the one two behind (at s_out + 2 next
+                    # cycle, when this write is a cycle old) read before this write: the flags, decided a
+                    # cycle ahead, make them add to this sum (a register) instead of what they read
+                    wen3 = Signal(name=f"{ar.name}_wen3_{k}_{q}")
+                    fwd1 = Signal(name=f"{ar.name}_fwd1_{k}_{q}")
+                    fwd2 = Signal(name=f"{ar.name}_fwd2_{k}_{q}")
+                    last1 = Signal.like(wp.data, name=f"{ar.name}_last1_{k}_{q}")
+                    last2 = Signal.like(wp.data, name=f"{ar.name}_last2_{k}_{q}")
+                    m.d.sync += [wen3.eq(wen), fwd1.eq(wen & (word1 == word2)), fwd2.eq(wen3 & (word1 == word3)),
+                                 last1.eq(wp.data), last2.eq(last1)]
                     m.d.comb += rp.addr.eq(Mux(phase[1], cnt, word))
                     m.d.comb += [
                         wp.addr.eq(Mux(phase[1], clear_addr, word2)),
-                        wp.data.eq(Mux(phase[1], 0, Mux(fwd, last, rd) + v2)),
+                        wp.data.eq(Mux(phase[1], 0, Mux(fwd1, last1, Mux(fwd2, last2, rd)) + v2)),
                         wp.en.eq(Mux(phase[1], clear_en, wen)),
                     ]
 
