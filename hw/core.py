@@ -28,7 +28,7 @@ Node state (x, u per dimension) lives in memories of ceil(N/Q) words, one memory
 element lanes read both end nodes through their own read ports.
 
 Host interface (`host`): word addresses, 32-bit data; writes take effect at once, reads return
-`r_data` with `r_valid` exactly 2 cycles after `r_en`. Writes to memories while busy are ignored, and
+`r_data` with `r_valid` exactly 3 cycles after `r_en` (READ_LATENCY). Writes to memories while busy are ignored, and
 memory reads while busy return undefined words: the host shares the pipeline's read ports (block RAM).
 
   0x000000  ID (read): 0x52484530 ("RHE0")
@@ -62,7 +62,7 @@ from .rtl_fixed import as_shape
 ID_WORD = 0x52484530
 REG_ID, REG_RUN, REG_STATUS, REG_STEP, REG_SAT, REG_SAT_FLAGS, REG_CYCLES = range(7)
 NODE_BASE, ELEM_BASE = 0x100000, 0x200000
-READ_LATENCY = 2
+READ_LATENCY = 3
 SAT_COUNT_LATENCY = 2  # lane sums of saturation flags, then their sum over lanes, then sat_count
 RMW_WRITE = 2          # an accumulator bank word read at stage s is written back at stage s + RMW_WRITE
 ADDR_BITS = 24
@@ -355,9 +355,10 @@ class Core(wiring.Component):
             else:
                 FP_rp = None
             with ar:
-                A = ar.input(_registered(m, A_rp.data, f"el{lane}_a_r"), "a", 2)
-                FP = (ar.input(_registered(m, FP_rp.data, f"el{lane}_fp_r"), "force", 2) if has_fp
-                      else ar.zeros("force", 1))
+                A_r = _registered(m, A_rp.data, f"el{lane}_a_r")
+                FP_r = _registered(m, FP_rp.data, f"el{lane}_fp_r") if has_fp else None
+                A = ar.input(A_r, "a", 2)
+                FP = ar.input(FP_r, "force", 2) if has_fp else ar.zeros("force", 1)
                 fe, newA, newFP = element_kernel(
                     ar, p, [ar.input(v, "x", 4) for v in Xi], [ar.input(v, "x", 4) for v in Xj],
                     [ar.input(v, "u", 4) for v in Ui], [ar.input(v, "u", 4) for v in Uj], A, FP)
@@ -371,7 +372,7 @@ class Core(wiring.Component):
             if has_fp:
                 m.d.comb += [FP_wp.addr.eq(slot_at), FP_wp.data.eq(ar.at(newFP, s_out)), FP_wp.en.eq(en)]
             self.elem_state_mems.append((A_mem, FP_mem, A_wp if has_a else None, FP_wp if has_fp else None,
-                                         A_rp, FP_rp))
+                                         A_rp, FP_rp, A_r, FP_r))
             # the ROM of this lane: node words/slots and per-element parameters
             self._rom(m, add_mem, f"el{lane}_rom", rom_fields, S, cnt)
             fe_out = [ar.at(v, s_out) for v in fe]
@@ -490,8 +491,8 @@ class Core(wiring.Component):
                 for mems, out in ((Xm, Xq), (Um, Uq)):
                     rp = mems[k][q].read_port(domain="sync")
                     m.d.comb += rp.addr.eq(cnt)
-                    node_lane_reads[k + D * (mems is Um), q] = rp
                     out.append(_registered(m, rp.data, f"nd{q}_{'x' if mems is Xm else 'u'}{k}_r"))
+                    node_lane_reads[k + D * (mems is Um), q] = (rp, out[-1])
             # exact sum of the banks' slot q (their words registered first), registered: valid at stage 3
             F_elem = []
             for k in range(D):
@@ -532,26 +533,27 @@ class Core(wiring.Component):
                     wp.data.eq(Mux(busy, (nu if is_u else nx)[k], host.w_data)),
                     wp.en.eq(Mux(busy, nvalid, hit)),
                 ]
-        # host reads
-        r_en1, r_addr1 = Signal(), Signal(ADDR_BITS)
-        m.d.sync += [r_en1.eq(host.r_en), r_addr1.eq(h_addr)]
+        # host reads: the address goes to the (shared) read ports, whose data the pipeline registers; the
+        # address, registered twice, selects among those registers; the answer is registered once more
+        r_en1, r_addr1, r_en2, r_addr2 = Signal(), Signal(ADDR_BITS), Signal(), Signal(ADDR_BITS)
+        m.d.sync += [r_en1.eq(host.r_en), r_addr1.eq(h_addr), r_en2.eq(r_en1), r_addr2.eq(r_addr1)]
         node_read = []
-        for (fi, q), rp in node_lane_reads.items():
+        for (fi, q), (rp, data_r) in node_lane_reads.items():
             with m.If(~busy):               # node lane q's read port, the host's while idle
                 m.d.comb += rp.addr.eq(h_word)
-            node_read.append((fi, q, rp.data))
+            node_read.append((fi, q, data_r))
         e_off = h_addr - ELEM_BASE
         pbits, lbits = cfg.pos_bits, cfg.lane_bits
         e_field = e_off >> (pbits + lbits)
         e_pos, e_lane = e_off[:pbits], e_off[pbits:pbits + lbits]
         elem_read = []
-        for lane, (A_mem, FP_mem, A_wp, FP_wp, A_rp, FP_rp) in enumerate(self.elem_state_mems):
-            for fi, (mem, wp, rp) in enumerate(((A_mem, A_wp, A_rp), (FP_mem, FP_wp, FP_rp))):
+        for lane, (A_mem, FP_mem, A_wp, FP_wp, A_rp, FP_rp, A_r, FP_r) in enumerate(self.elem_state_mems):
+            for fi, (mem, wp, rp, data_r) in enumerate(((A_mem, A_wp, A_rp, A_r), (FP_mem, FP_wp, FP_rp, FP_r))):
                 if mem is None:
                     continue
                 with m.If(~busy):           # the element lane's read port, the host's while idle
                     m.d.comb += rp.addr.eq(e_pos)
-                elem_read.append((fi, lane, rp.data))
+                elem_read.append((fi, lane, data_r))
                 if wp is None:          # no a-state in the pipeline: the host still loads a
                     wp = mem.write_port()
                     m.d.comb += [wp.addr.eq(e_pos), wp.data.eq(host.w_data),
@@ -621,9 +623,9 @@ class Core(wiring.Component):
             with m.If(h_addr == REG_STEP):
                 m.d.sync += step_no.eq(host.w_data)
 
-        # register reads: decode the address registered with r_en, answer one cycle later
+        # register reads: decode the address registered twice with r_en, answer one cycle later
         r_data = Signal(32)
-        with m.Switch(r_addr1):
+        with m.Switch(r_addr2):
             with m.Case(REG_ID):
                 m.d.comb += r_data.eq(ID_WORD)
             with m.Case(REG_RUN):
@@ -639,25 +641,25 @@ class Core(wiring.Component):
             with m.Case(REG_CYCLES):
                 m.d.comb += r_data.eq(cycles)
             with m.Default():
-                r_off = r_addr1 - NODE_BASE
+                r_off = r_addr2 - NODE_BASE
                 r_field, r_slot = r_off >> (wbits + sbits), r_off[wbits:wbits + sbits]
-                re_off = r_addr1 - ELEM_BASE
+                re_off = r_addr2 - ELEM_BASE
                 re_field, re_lane = re_off >> (pbits + lbits), re_off[pbits:pbits + lbits]
-                with m.If((r_addr1 >= NODE_BASE) & (r_addr1 < ELEM_BASE)):
+                with m.If((r_addr2 >= NODE_BASE) & (r_addr2 < ELEM_BASE)):
                     for fi, q, data in node_read:
                         with m.If((r_field == fi) & (r_slot == q)):
                             m.d.comb += r_data.eq(data.as_signed())
-                with m.Elif(r_addr1 >= ELEM_BASE):
+                with m.Elif(r_addr2 >= ELEM_BASE):
                     for fi, lane, data in elem_read:
                         with m.If((re_field == fi) & (re_lane == lane)):
                             m.d.comb += r_data.eq(data.as_signed())
-        m.d.sync += [host.r_data.eq(r_data), host.r_valid.eq(r_en1)]
+        m.d.sync += [host.r_data.eq(r_data), host.r_valid.eq(r_en2)]
         self.units_present = self._units_present()
         return m
 
     def _host_elem_writes(self, m, busy, host, h_elem, e_field, e_lane, e_pos):
         """Element state write ports: the pipeline while busy, the host while idle."""
-        for lane, (A_mem, FP_mem, A_wp, FP_wp, _, _) in enumerate(self.elem_state_mems):
+        for lane, (A_mem, FP_mem, A_wp, FP_wp, *_) in enumerate(self.elem_state_mems):
             for fi, wp in enumerate((A_wp, FP_wp)):
                 if wp is None:
                     continue

@@ -35,7 +35,7 @@ class AmaranthBus:
     async def read_many(self, addrs):
         c, h = self.ctx, self.host
         out = []
-        for a in addrs:                      # one read issued per cycle, answers 2 cycles later
+        for a in addrs:                      # one read issued per cycle, answers READ_LATENCY cycles later
             c.set(h.addr, a)
             c.set(h.r_en, 1)
             await c.tick()
