@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e .
 	touch $(STAMP)
 
-## Main job: simulate the default scene, render it, export it.
+## Main job on the default scene: golden and bit-true runs, pictures, Verilog checked on Icarus, report, synthesis.
 run: $(STAMP)
 	$(BIN)/rheo run --out $(OUT)
 

@@ -153,8 +153,9 @@ def cmd_synth(args) -> int:
         r["modelled_element_updates_per_s"] = r["modelled_steps_per_s"] * man["elements"]
     (out / "synth.json").write_text(json.dumps(r, indent=2, default=str))
     print(f"wrote {out}/synth.json, report.md, {man['verilog']}, manifest.json")
-    timing = (f"Fmax {r['fmax_mhz']} MHz (constraint {args.clock_mhz} MHz, {'met' if r['timing_met'] else 'NOT met'})"
-              if args.pnr else "no place and route (--no-pnr): no Fmax")
+    timing = (f"Fmax {r['fmax_mhz']:.1f} MHz (constraint {args.clock_mhz} MHz, {'met' if r['timing_met'] else 'NOT met'})"
+              if args.pnr and r.get("fmax_mhz") is not None else
+              "no place and route (--no-pnr): no Fmax" if not args.pnr else "no Fmax: see nextpnr.log")
     print(f"  {r['luts']} LUTs, {r['flip_flops']} FFs, {r['mult18x18']} 18x18 multipliers, {r['block_rams']} block RAMs; "
           + timing)
     if r.get("fmax_mhz"):
@@ -283,7 +284,7 @@ def cmd_run(args) -> int:
         nm = emit.write(nb, out / "synth")
         r = synthesize(out / "synth" / nm["verilog"], nm["top"], out / "synth", clock_mhz=100.0)
         print(f"      {r['luts']} LUTs, {r['flip_flops']} FFs, {r['mult18x18']} multipliers, {r['block_rams']} "
-              f"block RAMs, Fmax {r['fmax_mhz']} MHz -> {out / 'synth' / 'report.md'}")
+              f"block RAMs, Fmax {r['fmax_mhz']:.1f} MHz -> {out / 'synth' / 'report.md'}")
     print(f"[{n}/{n}] done: {out}/ holds the runs, pictures, verilog/, report/" + (", synth/" if args.synth else ""))
     return 0
 
