@@ -57,7 +57,7 @@ from .datapath import Params, _node_flags, collision_kernel, element_kernel, nod
 # (vertex, facet) pair kinds: lane name prefix, Params table, per-item kernel
 PAIR_KINDS = (("pr", "topology", pair_kernel), ("co", "collision", collision_kernel))
 from .pipeline import PipeArith
-from .rtl_fixed import as_shape
+from .rtl_fixed import as_shape, tree_sum
 
 ID_WORD = 0x52484530
 REG_ID, REG_RUN, REG_STATUS, REG_STEP, REG_SAT, REG_SAT_FLAGS, REG_CYCLES = range(7)
@@ -181,14 +181,6 @@ def schedule(cfg: CoreConfig) -> dict:
     Fragment.get(core, None)          # the whole hierarchy, so no part is left "created but never used"
     return {"cycles_per_step": core.cycles_per_step, "drain_elements": core.drain_elements,
             "drain_nodes": core.drain_nodes, "lanes": cfg.lanes, "node_lanes": cfg.node_lanes}
-
-
-def _tree_sum(values):
-    """A balanced adder tree (shallow expressions; exact: Amaranth widens every sum)."""
-    values = list(values)
-    while len(values) > 1:
-        values = [values[i] + values[i + 1] if i + 1 < len(values) else values[i] for i in range(0, len(values), 2)]
-    return values[0]
 
 
 def _bits(n):
@@ -496,7 +488,7 @@ class Core(wiring.Component):
             # exact sum of the banks' slot q (their words registered first), registered: valid at stage 3
             F_elem = []
             for k in range(D):
-                total = _tree_sum([ports[k][q][2] for _, ports, _ in banks])
+                total = tree_sum([ports[k][q][2] for _, ports, _ in banks])
                 r = Signal(signed(max(w for _, _, w in banks) + _bits(len(banks)) + 1), name=f"nd{q}_facc{k}")
                 m.d.sync += r.eq(total)
                 F_elem.append(r)
@@ -573,7 +565,7 @@ class Core(wiring.Component):
         sat_flags = Signal(max(1, len(quantities)))
         if events:
             per_cycle = Signal(16)
-            m.d.sync += per_cycle.eq(_tree_sum([c for _, c in events]))
+            m.d.sync += per_cycle.eq(tree_sum([c for _, c in events]))
             hits = Cat(*[Cat(*[(c != 0) for qq, c in events if qq == q]).any() for q in quantities])
             new_count = sat_count + per_cycle
             with m.If(host.w_en & (h_addr == REG_SAT)):
