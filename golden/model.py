@@ -4,7 +4,7 @@ All forces come from the state at the start of the step:
     F = element forces + topology preservation + floor + collisions + loads
     v <- v + dt (F / m + g)   (pinned nodes: v = 0)
     x <- x + dt v
-    a <- clip(a + dt adot, a_min, a_max);  f_prev <- |T|
+    a <- clip(a + dt adot, a_min, a_max)
 Everything is vectorised over elements, nodes and contact pairs; no Python loop inside a step
 except over the (few) load entries and the D axes of a scatter.
 """
@@ -86,17 +86,14 @@ class State:
     x: np.ndarray            # (N, D), component-major storage
     v: np.ndarray
     a: np.ndarray            # (E,)
-    f_prev: np.ndarray       # |T| of the previous step (nonlinear damper input)
     step: int = 0
 
     @classmethod
     def initial(cls, sys: System) -> "State":
-        return cls(component_major(sys.x0), component_major(sys.v0), sys.a0.copy(),
-                   np.zeros(sys.n_elements))
+        return cls(component_major(sys.x0), component_major(sys.v0), sys.a0.copy())
 
     def copy(self) -> "State":
-        return State(component_major(self.x), component_major(self.v), self.a.copy(),
-                     self.f_prev.copy(), self.step)
+        return State(component_major(self.x), component_major(self.v), self.a.copy(), self.step)
 
 
 class Golden:
@@ -123,7 +120,7 @@ class Golden:
         sys = self.sys
         if not st.x.T.flags.c_contiguous:
             st.x, st.v = component_major(st.x), component_major(st.v)
-        T, T_l, d, adot = element_forces(st.x.T, st.v.T, st.a, st.f_prev, self.i, self.j, sys.elem)
+        T, T_l, d, adot = element_forces(st.x.T, st.v.T, st.a, self.i, self.j, sys.elem)
         F = np.stack([self._scatter @ (T_l * dk) for dk in d])      # (D, N)
         F = F.T
         if self._has_extra:
@@ -153,8 +150,6 @@ class Golden:
         if not sys.elem.fixed_a:
             st.a += adot * dt
             np.clip(st.a, sys.elem.a_min, sys.elem.a_max, out=st.a)
-        if sys.elem.nonlinear:
-            np.abs(T, out=st.f_prev)
         st.step += 1
 
 

@@ -48,14 +48,14 @@ def test_constant_stretch_rate_force_law():
     p = ElementParams.build(np.array([k1]), np.array([c1]), np.array([0.0]), np.array([1.0]),
                             np.array([a0 * l0]), np.array([c2]), np.array([c2]), np.array([0.0]), np.array([1.0]))
     i, j = np.array([0]), np.array([1])
-    a, f_prev = np.array([a0]), np.zeros(1)
+    a = np.array([a0])
     tau = (c1 + c2) / k1
     worst = 0.0
     for step in range(int(0.1 / dt) + 1):
         t = step * dt
         xt = np.array([[0.0, l0 + V * t], [0.0, 0.0]])
         vt = np.array([[0.0, V], [0.0, 0.0]])
-        T, _, _, adot = element_forces(xt, vt, a, f_prev, i, j, p)
+        T, _, _, adot = element_forces(xt, vt, a, i, j, p)
         if step % 1000 == 0:
             expected = c2 * V * (1 - c2 / (c1 + c2) * math.exp(-t / tau))
             worst = max(worst, abs(T[0] - expected) / (c2 * V))
@@ -95,7 +95,7 @@ def _one_element(k1, c1, c2, a, a_min, a_max, l0=0.01):
 def test_stretched_element_pulls_its_ends_together():
     p = _one_element(50.0, 0.5, 5.0, 0.5, 0.0, 1.0)
     xt = np.array([[0.0, 0.012], [0.0, 0.0]])       # stretched by 2 mm, at rest
-    T, T_l, d, _ = element_forces(xt, np.zeros((2, 2)), np.array([0.5]), np.zeros(1), np.array([0]), np.array([1]), p)
+    T, T_l, d, _ = element_forces(xt, np.zeros((2, 2)), np.array([0.5]), np.array([0]), np.array([1]), p)
     assert T[0] > 0
     force_on_start = T_l[0] * d[0][0]               # +T e on the start node
     assert force_on_start > 0                       # points towards the end node (+x)
@@ -110,7 +110,7 @@ def test_viscoelastic_clamp_gives_voigt_element():
         l, ldot = l0 * rng.uniform(0.5, 1.5), rng.uniform(-0.1, 0.1)
         xt = np.array([[0.0, l], [0.0, 0.0]])
         vt = np.array([[0.0, ldot], [0.0, 0.0]])
-        T, *_ = element_forces(xt, vt, np.array([1.0]), np.zeros(1), np.array([0]), np.array([1]), p)
+        T, *_ = element_forces(xt, vt, np.array([1.0]), np.array([0]), np.array([1]), p)
         assert T[0] == pytest.approx(k1 * (l - l0) + c1 * ldot, rel=1e-12, abs=1e-15)
 
 
@@ -124,7 +124,7 @@ def test_unclamped_tension_equals_series_form():
         l, ldot = l0 * rng.uniform(0.5, 1.5), rng.uniform(-0.1, 0.1)
         xt = np.array([[0.0, 0.0], [0.0, l]])
         vt = np.array([[0.0, 0.0], [0.0, ldot]])
-        T, _, _, adot = element_forces(xt, vt, np.array([a]), np.zeros(1), np.array([0]), np.array([1]), p)
+        T, _, _, adot = element_forces(xt, vt, np.array([a]), np.array([0]), np.array([1]), p)
         s = a * l - 0.5 * l0
         assert T[0] == pytest.approx(c2 * (k1 * s + c1 * ldot) / (c1 + c2), rel=1e-10, abs=1e-15)
         assert T[0] == pytest.approx(c2 * ((1 - a) * ldot - adot[0] * l), rel=1e-10, abs=1e-15)
