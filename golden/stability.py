@@ -42,14 +42,19 @@ predict(sys) -> dict
       dt < 2 (c1 + c2) m / (c1 c2 + k1 m) and dt < (-B + sqrt(B^2 + 4 c2 k1 (c1 + c2) m)) / (c2 k1),
       B = c1 c2 + k1 m; 0.1275 for m = 1, k1 = 100, c1 = c2 = 5), bisection otherwise. The worst case is
       taken over a in {a_min, a_max} (the limit depends on a: 0.1275 at a = 1, 0.16 at a = 0.5, 0.25 at
-      a = 0 in that example) and over c2 on a log grid of [c_min, c_max] (nonlinear damper; the worst is
-      usually c_max).
-      Not in dt_pred, reported: a sitting on a bound with adot pointing out makes the element a Voigt
-      element (k1 a, c1 a) ("clamped_dt"); the clamp lets go at the next reversal of adot, which an
-      unstable oscillation brings at once, and no built-in scene keeps a on a bound (press-2d-plastic:
-      clamped_dt = 5.3e-5 s, yet it measures 1.24e-4 s, the a-free value).
+      a = 0 in that example) and over c2 on a log grid of [c_t_min, c_max] (nonlinear damper; the worst
+      is usually c_max). c2 here is the damper's tangent damping (MODEL.md 7): the element is solved
+      exactly each step (T = Phi(Y), Y = k1 s + c1 ldot), so linearised it is a three-element element
+      whose damper is c_t = dT/dw' = c2 / (1 + B |T|) between f1 and f2 (c2 itself outside), which ranges
+      over [c_t_min, c_max] with c_t_min = c_min / (1 + B f2) (just below f2; B f2 = ln(A / c_min)).
+      Not in dt_pred, reported: a sitting on a_max with adot > 0 makes the element a Voigt element
+      (k1 a, c1 a) ("clamped_dt"; on a_min the Voigt part is rigid and the element is the damper alone,
+      T = Psi((1 - a) ldot), damping at most c_max (1 - a_min), not reported); the clamp lets go at the
+      next reversal of adot, which an unstable oscillation brings at once, and no built-in scene keeps a
+      on a bound (press-2d-plastic: clamped_dt = 5.3e-5 s, yet it measures 1.24e-4 s, the a-free value).
 
-    Element bound: the a state relaxes with rate k1 / (c1 + c2): dt < 2 (c1 + c_min) / k1 (free a, k1 > 0).
+    Element bound: the a state relaxes with rate k1 / (c1 + c_t): dt < 2 (c1 + c_t_min) / k1 (free a,
+    k1 > 0; c_t_min = c_min / (1 + B f2) for a nonlinear damper, c2 for a constant one).
 
     Friction: the regularised friction is a damper of gain min(k_f, mu N / |v_t|), unstable above
     2 m / k_f ("friction_dt", with the same Gershgorin sums); its force is capped at mu N, so above that
@@ -63,7 +68,7 @@ EnergyWatch(sys)
 
         watch = EnergyWatch(sys)                       # before the frame loop
         ...
-        watch.check(State(xs[f], vs[f], as_[f], st.f_prev, st.step))   # after recording frame f
+        watch.check(State(x=xs[f], v=vs[f], a=as_[f], step=st.step))   # after recording frame f
                                                        # (it also covers check_finite)
 
     It raises golden.model.SimulationDiverged when the state is not finite, a node is further than
@@ -82,7 +87,7 @@ from .model import Golden, SimulationDiverged, State, System
 
 GROWTH = 1e3          # energy above GROWTH x the work bound counts as divergence
 BOX = 1e3             # positions further than BOX x the scene size from its centre: divergence
-C2_GRID = 9           # c2 values (log spaced over [c_min, c_max]) tried for a nonlinear damper
+C2_GRID = 9           # c2 values (log spaced over [c_t_min, c_max]) tried for a nonlinear damper
 MAX_STEPS = 20_000    # default cap on the steps of one measuring trial
 PATCH_DOFS = 3000     # mesh_factor solves larger components on a patch of about this many DOFs
 PATCH_MARGIN = 0.02   # ... and raises the patch eigenvalue by this fraction
@@ -200,6 +205,22 @@ def node_three_element_limit(m, kp, cp, k1, c1, c2, a):
 
 def _per_element(sys: System, name: str) -> np.ndarray:
     return np.broadcast_to(np.asarray(getattr(sys.elem, name), float), (sys.n_elements,))
+
+
+def tangent_c_min(sys: System) -> np.ndarray:
+    """Per element (E,): the smallest tangent damping of its damper, MODEL.md 7.
+
+    The damper's tangent damping is c_t = dT/dw' = c2 / (1 + B |T|) between f1 and f2 (w' = T / c2(|T|)
+    = T exp(B |T|) / A there, so dw'/dT = (1 + B |T|) / c2) and c2 itself outside; its smallest value is
+    c_min / (1 + B f2), just below f2, with B = ln(c_max / c_min) / (f2 - f1) and f2 = ln(A / c_min) / B,
+    i.e. B f2 = ln(A / c_min). A constant damper (c_min = c_max, B = 0) gives c_min."""
+    c_min = _per_element(sys, "c_min")
+    c_max = _per_element(sys, "c_max")
+    A, B = _per_element(sys, "A"), _per_element(sys, "B")
+    varies = (c_max > c_min) & (B > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bf2 = np.where(varies, np.log(np.where(varies, A / c_min, 1.0)), 0.0)      # B f2
+    return c_min / (1.0 + np.maximum(bf2, 0.0))
 
 
 def _boundary_nodes(sys: System) -> np.ndarray:
@@ -390,13 +411,15 @@ def _patch(adj, seeds, max_nodes: int) -> np.ndarray:
 def node_terms(sys: System) -> dict:
     """Per-node (N,) scalars of the node model: mass; penalty (kp, cp) of the stiffest single contact
     the node can make; fixed-a Voigt elements (kf, cf); moving-a three-element elements (k1, c1, c2 on a
-    grid over [c_min, c_max]). Element terms are directional Gershgorin sums (balanced weights, see
-    _Geometry.weights) scaled by min(1, (1 + MESH_MARGIN) x mesh_factor)."""
+    grid over [c_t_min, c_max], c_t_min = c_min / (1 + B f2) the smallest tangent damping, MODEL.md 7).
+    Element terms are directional Gershgorin sums (balanced weights, see _Geometry.weights) scaled by
+    min(1, (1 + MESH_MARGIN) x mesh_factor)."""
     geo = _Geometry(sys)
     N, free, m = geo.N, geo.free, geo.m
     k1, c1 = _per_element(sys, "k1"), _per_element(sys, "c1")
     a_min, a_max = _per_element(sys, "a_min"), _per_element(sys, "a_max")
-    c_min, c_max = _per_element(sys, "c_min"), _per_element(sys, "c_max")
+    c_max = _per_element(sys, "c_max")
+    c_lo = tangent_c_min(sys)                              # smallest tangent damping of each damper
     moving = (not sys.elem.fixed_a) & (a_max > a_min)      # elements with an a state
     fixed = ~moving
     t = {"m": m, "free": free}
@@ -447,9 +470,9 @@ def node_terms(sys: System) -> dict:
     scale = np.minimum(1.0, (1.0 + MESH_MARGIN) * phi)
     t["scale"] = scale
     grid = np.linspace(0.0, 1.0, C2_GRID) if sys.elem.nonlinear else np.zeros(1)
-    t["c2_values"] = [float(np.median(c_min[moving] ** (1 - g) * c_max[moving] ** g)) if moving.any() else 0.0
+    t["c2_values"] = [float(np.median(c_lo[moving] ** (1 - g) * c_max[moving] ** g)) if moving.any() else 0.0
                       for g in grid]
-    c2s = [c_min ** (1 - g) * c_max ** g for g in grid]
+    c2s = [c_lo ** (1 - g) * c_max ** g for g in grid]
 
     def terms(sum_k, sum_c, kp, cp):
         return {"kp": kp + sum_k(k1 * a_max, fixed), "cp": cp + sum_c(c1 * a_max, fixed),
@@ -495,7 +518,8 @@ def node_limits(sys: System, t: dict | None = None):
 
     Cases: the mesh mode and, for nodes that can touch a contact, the contact mode; each as a Voigt node
     when the node has no a state, else as the three-element node model with a free at a_max and at a_min,
-    for every c2 on the grid over [c_min, c_max]. Nodes with identical parameters are evaluated once."""
+    for every c2 on the grid over [c_t_min, c_max] (tangent damping, MODEL.md 7). Nodes with identical
+    parameters are evaluated once."""
     t = node_terms(sys) if t is None else t
     m, free = t["m"], t["free"]
     modes = (("mesh mode", t["mesh"], free), ("contact mode", t["touch"], t["has_contact"]))
@@ -539,13 +563,15 @@ def node_limits(sys: System, t: dict | None = None):
 
 
 def element_limits(sys: System) -> np.ndarray:
-    """Per-element bound on the a state, dt < 2 (c1 + c_min) / k1 (inf without an a state or k1 = 0)."""
+    """Per-element bound on the a state, dt < 2 (c1 + c_t_min) / k1 (inf without an a state or k1 = 0),
+    with c_t_min = c_min / (1 + B f2) the damper's smallest tangent damping (MODEL.md 7; c2 for a constant
+    damper): linearised, a relaxes with rate k1 / (c1 + c_t)."""
     k1, c1 = _per_element(sys, "k1"), _per_element(sys, "c1")
     a_min, a_max = _per_element(sys, "a_min"), _per_element(sys, "a_max")
-    c_min = _per_element(sys, "c_min")
+    c_lo = tangent_c_min(sys)
     moving = (not sys.elem.fixed_a) & (a_max > a_min) & (k1 > 0)
     out = np.full(sys.n_elements, np.inf)
-    out[moving] = 2.0 * (c1[moving] + c_min[moving]) / k1[moving]
+    out[moving] = 2.0 * (c1[moving] + c_lo[moving]) / k1[moving]
     return out
 
 
@@ -581,14 +607,15 @@ def predict(sys: System) -> dict:
         parts["c2_elements"] = float(tm["c2"][g][i])
     if len(el) and np.isfinite(element_bound):
         parts.update(element_k1=float(_per_element(sys, "k1")[e_at]), element_c1=float(_per_element(sys, "c1")[e_at]),
-                     element_c_min=float(_per_element(sys, "c_min")[e_at]))
+                     element_c_min=float(_per_element(sys, "c_min")[e_at]),
+                     element_c_t_min=float(tangent_c_min(sys)[e_at]))
     fr = t["friction"] > 0
     friction_dt = float(np.min(2.0 * t["m"][fr] / t["friction"][fr])) if fr.any() else math.inf
     clamped = voigt_limit(t["k_clamped"], t["c_clamped"], t["m"])
     clamped_dt = float(np.min(clamped[t["has_moving"]])) if t["has_moving"].any() else math.inf
     notes = []
     if clamped_dt < dt_pred:
-        notes.append(f"an element whose a sits on a bound with adot pointing out acts as a Voigt element "
+        notes.append(f"an element whose a sits on a_max with adot pointing out acts as a Voigt element "
                      f"(k1 a, c1 a): stable only below {clamped_dt:.3g} s while it stays clamped; the clamp "
                      f"releases on the next reversal, so this bounds chatter, not divergence")
     if fr.any():
@@ -820,9 +847,9 @@ def trial(sys: System, dt: float, ref: Reference | None = None, steps: int | Non
     Unstable: the DivergenceTest fires (non-finite, out of the box, energy > GROWTH x work bound), or,
     with a reference run, the mechanical energy exceeds LOCAL x the reference's largest energy within
     +- its window around the same time, plus FLOOR x the reference's peak. The local test catches what
-    a divergence test misses: bounded period-2 chatter of a saturating nonlinearity. Above its c_max
-    limit the nonlinear damper chatters at |T| ~ f1..f2 for ever (a plastic block never comes to rest)
-    and a viscoelastic mesh just above its limit saturates geometrically at m/s speeds; neither blows up."""
+    a divergence test misses: an unstable mode that a nonlinearity bounds instead of letting it blow up,
+    e.g. a viscoelastic mesh just above its limit saturates geometrically at m/s speeds, and friction
+    above 2 m / k_f chatters with its force capped at mu N."""
     duration = sys.n_steps * sys.dt
     n = int(steps) if steps is not None else min(max_steps, max(1, int(math.ceil(duration / dt - 1e-9))))
 

@@ -17,8 +17,8 @@ import pytest
 
 from golden.model import Golden, SimulationDiverged, State
 from golden.scene import builtin_names, compile_scene, load_scene
-from golden.stability import (EnergyWatch, _start, measure, node_three_element_limit, predict, reference,
-                              three_element_limit, voigt_limit)
+from golden.stability import (EnergyWatch, _start, measure, node_terms, node_three_element_limit, predict,
+                              reference, three_element_limit, voigt_limit)
 from hw.stability_fixed import bittrue_model, float_datapath_model, measure_fixed, trial_fixed
 from sim import stability_cmd
 from sim.stability_cmd import refuse_if_unstable
@@ -76,6 +76,39 @@ def test_mass_on_three_element_element_matches_closed_form(tmp_path):
     assert p["element_bound"] == pytest.approx(2 * (c1 + c2) / k1)      # the a state alone: 0.2
     r = measure(sys, rel_tol=0.02)
     assert abs(r["dt_meas"] / closed - 1) < 0.05, r
+
+
+def test_nonlinear_damper_bounds_use_the_smallest_tangent_damping(tmp_path):
+    """MODEL.md 7: the damper's tangent damping c_t = c2 / (1 + B |T|) between f1 and f2 is smallest just
+    below f2, c_min / (1 + B f2), and it replaces c_min in the bounds: the a-state bound of a nonlinear
+    element is 2 (c1 + c_min / (1 + B f2)) / k1, and the node model's c2 grid starts there."""
+    k1, c1, c_min, c_max, f1, f2, m = 100.0, 0.1, 0.5, 50.0, 0.01, 0.05, 10.0
+    B = math.log(c_max / c_min) / (f2 - f1)
+    ct_min = c_min / (1.0 + B * f2)                     # 0.0740: 6.8 x below c_min
+    closed = 2.0 * (c1 + ct_min) / k1                   # 3.48e-3 s
+    assert f"{ct_min:.4f}" == "0.0740" and f"{closed:.3g}" == "0.00348"
+    assert closed < 2.0 * (c1 + c_min) / k1 / 3         # the c_min bound (0.012 s) would be 3.4 x too high
+    # the mass on one element (MODEL.md 7, a = 1) with c2 = ct_min; a heavy node (10 kg): just below closed
+    Bm = c1 * ct_min + k1 * m
+    node_closed = min(2 * (c1 + ct_min) * m / Bm,
+                      (-Bm + math.sqrt(Bm * Bm + 4 * ct_min * k1 * (c1 + ct_min) * m)) / (ct_min * k1))
+    assert 0.9999 * closed < node_closed < closed
+    sys = one_element(tmp_path, f"k1 = {k1}, c1 = {c1}, a0 = 0.5, a_min = 0.0, a_max = 1.0, "
+                                f"c_min = {c_min}, c_max = {c_max}, f1 = {f1}, f2 = {f2}", m, dt=1e-4, duration=1.0)
+    assert sys.elem.nonlinear
+    p = predict(sys)
+    assert p["element_bound"] == pytest.approx(closed, rel=1e-12)
+    assert p["node_bound"] == pytest.approx(node_closed, rel=1e-9)
+    assert p["dt_pred"] == p["node_bound"] and p["parts"]["case"].endswith("c2 = 0.074")
+    assert p["parts"]["element_c_min"] == c_min
+    assert p["parts"]["element_c_t_min"] == pytest.approx(ct_min, rel=1e-12)
+    c2_grid = node_terms(sys)["c2_values"]
+    assert c2_grid[0] == pytest.approx(ct_min, rel=1e-12) and c2_grid[-1] == pytest.approx(c_max, rel=1e-12)
+    # a constant damper keeps c2 itself
+    lin = one_element(tmp_path, f"k1 = {k1}, c1 = {c1}, c2 = {c_min}, a0 = 0.5, a_min = 0.0, a_max = 1.0",
+                      m, dt=1e-4, duration=1.0)
+    assert not lin.elem.nonlinear
+    assert predict(lin)["element_bound"] == pytest.approx(2.0 * (c1 + c_min) / k1, rel=1e-12)
 
 
 def test_three_element_node_model_matches_eigenvalues():
