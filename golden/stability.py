@@ -51,7 +51,8 @@ predict(sys) -> dict
       (k1 a, c1 a) ("clamped_dt"; on a_min the Voigt part is rigid and the element is the damper alone,
       T = Psi((1 - a) ldot), damping at most c_max (1 - a_min), not reported); the clamp lets go at the
       next reversal of adot, which an unstable oscillation brings at once, and no built-in scene keeps a
-      on a bound (press-2d-plastic: clamped_dt = 5.3e-5 s, yet it measures 1.24e-4 s, the a-free value).
+      on a bound (press-2d-plastic: clamped_dt = 5.2e-5 s, yet it measures 1.20e-4 .. 1.25e-4 s, above its
+      a-free prediction 1.05e-4 s).
 
     Element bound: the a state relaxes with rate k1 / (c1 + c_t): dt < 2 (c1 + c_t_min) / k1 (free a,
     k1 > 0; c_t_min = c_min / (1 + B f2) for a nonlinear damper, c2 for a constant one).

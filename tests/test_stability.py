@@ -111,6 +111,54 @@ def test_nonlinear_damper_bounds_use_the_smallest_tangent_damping(tmp_path):
     assert predict(lin)["element_bound"] == pytest.approx(2.0 * (c1 + c_min) / k1, rel=1e-12)
 
 
+def test_a_state_chatters_above_the_tangent_bound_at_its_force(tmp_path):
+    """The tangent damping is what the a state sees (v2, the element solved exactly): a mass creeping under
+    a constant pull F = 0.049 N (just below f2) settles at T = F, where c_t = c2(F) / (1 + B F) = 0.084,
+    6.6 x below c2(F) = 0.56. Explicit a relaxes stably only below 2 (c1 + c_t) / k1 = 3.69e-3 s: at 0.9 x
+    T is steady, at 1.1 x it chatters with period 2 (bounded: the energy tests of measure() do not see
+    it, which is why the element bound is a prediction only)."""
+    k1, c1, c_min, c_max, f1, f2, m, F = 100.0, 0.1, 0.5, 50.0, 0.01, 0.05, 0.5, 0.049
+    B = math.log(c_max / c_min) / (f2 - f1)
+    c2 = c_max * math.exp(-B * (F - f1))
+    ct = c2 / (1.0 + B * F)
+    bound = 2.0 * (c1 + ct) / k1
+    assert f"{ct:.4f}" == "0.0845" and f"{bound:.3g}" == "0.00369"
+    assert bound >= 2.0 * (c1 + c_min / (1.0 + B * f2)) / k1        # the worst case covers it
+    sys = scene_from(tmp_path, f"""
+dim = 2
+[integrator]
+dt = 1e-3
+duration = 20.0
+[[objects]]
+mesh = {{ type = "explicit", nodes = [[0.0, 0.0], [0.01, 0.0]], edges = [[0, 1]] }}
+material = {{ k1 = {k1}, c1 = {c1}, a0 = 0.5, a_min = 0.0, a_max = 1.0, c_min = {c_min}, c_max = {c_max}, f1 = {f1}, f2 = {f2} }}
+masses = [{m}, {m}]
+pinned = [0]
+[[loads]]
+nodes = [1]
+force = [{F}, 0.0]
+start = 0.0
+end = 1e3
+""")
+    assert predict(sys)["dt_pred"] <= bound
+
+    def tail_of_T(dt):
+        s = dataclasses.replace(sys, dt=dt, n_steps=int(20.0 / dt))
+        g, st = Golden(s), State.initial(s)
+        Ts = []
+        while st.step < s.n_steps:
+            if st.step >= s.n_steps - 200:
+                Ts.append(float(g.forces(st, st.step * dt)[1][0]))
+            g.step(st)
+        return np.array(Ts)
+
+    below, above = tail_of_T(0.9 * bound), tail_of_T(1.1 * bound)
+    assert abs(below.mean() / F - 1) < 0.01 and np.ptp(below) < 1e-3 * F, (below.mean(), np.ptp(below))
+    assert np.ptp(above) > 0.03 * F and np.all(np.isfinite(above)), np.ptp(above)
+    d = np.diff(above)
+    assert np.mean(d[1:] * d[:-1] < 0) > 0.9                          # period 2: every step reverses
+
+
 def test_three_element_node_model_matches_eigenvalues():
     """The Jury-condition limits (closed form for kp = 0, bisection otherwise) against the spectral radius
     of the linearised 3-state map (x, v, s) of the module docstring."""
