@@ -19,6 +19,7 @@ linear below f1 and above f2, convex in between, where T is found by Newton's me
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -105,15 +106,15 @@ class ElementParams:
         return np.flatnonzero((mag >= lo) & (mag < hi))
 
     def _exp_law(self, idx):
-        """t -> T e^(B T) / A and its derivative on the items idx (H on [f1, f2])."""
-        A, B = _sub(self.A, idx), _sub(self.B, idx)
+        """H(t) = t / c2(t) = t e^(B (t - f1)) / c_max and its derivative on the items idx, t in [f1, f2]."""
+        B, f1, cmax = _sub(self.B, idx), _sub(self.f1, idx), _sub(self.c_max, idx)
 
         def H(t, k):
-            return t * np.exp(_sub(B, k) * t) / _sub(A, k)
+            return t * np.exp(_sub(B, k) * (t - _sub(f1, k))) / _sub(cmax, k)
 
         def dH(t, k):
             bk = _sub(B, k)
-            return np.exp(bk * t) * (1.0 + bk * t) / _sub(A, k)
+            return np.exp(bk * (t - _sub(f1, k))) * (1.0 + bk * t) / _sub(cmax, k)
         return H, dH
 
     def phi(self, Y: np.ndarray, idx=None):
@@ -154,6 +155,65 @@ class ElementParams:
             H, dH = self._exp_law(mid if idx is None else _as_index(idx)[mid])
             T[mid] = np.sign(W[mid]) * solve_convex(H, dH, mag[mid], _sub(f1, mid), _sub(f2, mid))
         return T
+
+
+@dataclass(frozen=True)
+class DamperLaw:
+    """One force-dependent damper beside its c1 (scalars, any consistent units): the curves of MODEL.md 2 v2.
+
+    H(T) = T / c2(T), the damper's rate at the force T, and G(T) = T + c1 H(T), the drive that balances
+    T in series; both odd and strictly increasing, linear below f1 and above f2, convex in between.
+    """
+    c1: float
+    c_min: float
+    c_max: float
+    f1: float
+    f2: float
+
+    @property
+    def B(self) -> float:
+        return math.log(self.c_max / self.c_min) / (self.f2 - self.f1)
+
+    # H and its derivatives on [f1, f2] (e^(B (t - f1)) / c_max = 1 / c2(t))
+    def H(self, t):
+        return t * np.exp(self.B * (t - self.f1)) / self.c_max
+
+    def dH(self, t):
+        return np.exp(self.B * (t - self.f1)) * (1.0 + self.B * t) / self.c_max
+
+    def d2H(self, t):
+        B = self.B
+        return np.exp(B * (t - self.f1)) * B * (2.0 + B * t) / self.c_max
+
+    def G(self, t):
+        return t + self.c1 * self.H(t)
+
+    def dG(self, t):
+        return 1.0 + self.c1 * self.dH(t)
+
+    def d2G(self, t):
+        return self.c1 * self.d2H(t)
+
+    # the knees of Phi = G^-1 (in the drive Y) and of Psi = H^-1 (in the rate W), and the linear slopes
+    @property
+    def Y1(self) -> float:
+        return self.f1 * (1.0 + self.c1 / self.c_max)
+
+    @property
+    def Y2(self) -> float:
+        return self.f2 * (1.0 + self.c1 / self.c_min)
+
+    @property
+    def W1(self) -> float:
+        return self.f1 / self.c_max
+
+    @property
+    def W2(self) -> float:
+        return self.f2 / self.c_min
+
+    def slopes(self, c2: float) -> tuple:
+        """(dT/dY, dw'/dY) on a linear piece with damper c2."""
+        return c2 / (self.c1 + c2), 1.0 / (self.c1 + c2)
 
 
 def _as_index(idx) -> np.ndarray:

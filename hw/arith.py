@@ -136,10 +136,15 @@ class FloatArith(_ArrayArith):
     def rsqrt(self, a, q):
         return self._rec(q, 1.0 / np.sqrt(a.x))
 
-    def damper(self, f, table):
-        c2 = np.clip(table.A * np.exp(-table.B * f.x), table.c_min, table.c_max)
-        c12 = table.c1 + c2
-        return self._rec("c2", c2), self._rec("c12", c12), self._rec("ic12", 1.0 / c12)
+    def inverse(self, mag, curve):
+        """(below, above, outputs) of an inverse table (hw/funcunits.py InverseTable), exactly: the
+        magnitude's piece, and the inverse and companions at the magnitude clamped into the table."""
+        from golden.elements import solve_convex
+        y1, y2 = float(curve.g(np.float64(curve.t_lo))), float(curve.g(np.float64(curve.t_hi)))
+        y = np.clip(mag.x, y1, y2)
+        t = solve_convex(lambda t, k: curve.g(t), lambda t, k: curve.dg(t), y, curve.t_lo, curve.t_hi)
+        outs = [t] + [c(t) for c, _, _ in curve.companions]
+        return mag.x <= y1, mag.x >= y2, [self._rec(q, v) for q, v in zip(curve.outputs, outs)]
 
     def le(self, a, b):
         return a.x <= b.x
@@ -168,11 +173,12 @@ class FixedArith(_ArrayArith):
     exact = False
 
     def __init__(self, fmt: dict, units: dict | None = None, sat: Saturations | None = None,
-                 const_sat: Saturations | None = None):
+                 const_sat: Saturations | None = None, lost: Saturations | None = None):
         self.fmt = fmt
-        self.units = units or {}          # function units by name: "rsqrt", "damper"
+        self.units = units or {}          # function units by name: the rsqrt quantities, "phi", "psi"
         self.sat = sat if sat is not None else Saturations()                 # run time (the hardware counts)
         self.const_sat = const_sat if const_sat is not None else Saturations()   # constants (compile time)
+        self.lost = lost if lost is not None else Saturations()     # constants that round to zero
         self._consts = {}
 
     def shape(self, q) -> Shape:
@@ -184,8 +190,21 @@ class FixedArith(_ArrayArith):
     def const(self, q, value):
         key = (q, id(value)) if isinstance(value, np.ndarray) else (q, float(value))
         if key not in self._consts:
-            self._consts[key] = V(self.shape(q).from_float(value, self.const_sat, q), q)
+            self._consts[key] = V(self.convert_constant(q, value), q)
         return self._consts[key]
+
+    LOST_FRACTION = 1e-6      # a value this much below its quantity's largest may round to zero unremarked
+
+    def convert_constant(self, q, value) -> np.ndarray:
+        """A constant or initial state in q's format; saturations and values that round to zero (nonzero
+        values above LOST_FRACTION of the largest) are counted in const_sat and lost."""
+        raw = self.shape(q).from_float(value, self.const_sat, q)
+        v = np.abs(np.asarray(value, float))
+        if v.size and np.any(raw == 0):
+            n = int(np.count_nonzero((raw == 0) & (v > self.LOST_FRACTION * float(v.max()))))
+            if n:
+                self.lost.add(q, n)
+        return raw
 
     def state(self, q, raw):
         return V(np.asarray(raw, np.int64), q)
@@ -228,10 +247,10 @@ class FixedArith(_ArrayArith):
         unit = self.units[q]
         return V(unit(a.x, self.sat), q)
 
-    def damper(self, f, table):
-        unit = self.units["damper"]
-        c2, c12, ic = unit(f.x, self.sat)
-        return V(c2, "c2"), V(c12, "c12"), V(ic, "ic12")
+    def inverse(self, mag, curve):
+        unit = self.units[curve.name]
+        outs = unit(mag.x, self.sat)
+        return mag.x <= unit.Y1, mag.x >= unit.Y2, [V(v, q) for v, q in zip(outs, curve.outputs)]
 
     def _aligned(self, a, b):
         fa, fb = self.shape(a.q).f, self.shape(b.q).f

@@ -13,31 +13,39 @@ from golden.model import SimulationDiverged, System, simulate
 from .arith import FixedArith, FloatArith
 from .datapath import HwState, Params, step
 from .fixed import Saturations
-from .formats import PRESETS, FormatSet, derive
+from .formats import PRESETS, FormatError, FormatSet, derive
 from .units import HardwareUnits
 
 FRICTION_SCALE_HEADROOM = 2.0 ** 8
 RSQRT_INPUTS = {"inv_l": "l2", "tinv": "tl2", "tinv2": "tl4", "finv": "fmag2", "cinv": "cl2", "cinv2": "cl4"}
 
 
-def float_state(sys: System, units: HardwareUnits, x, v, a, f_prev=None, step_no=0) -> HwState:
+def float_state(sys: System, units: HardwareUnits, x, v, a, step_no=0) -> HwState:
     X = units.length(x)
     U = units.velocity(v)
-    fp = np.zeros(sys.n_elements) if f_prev is None else f_prev
     return HwState([X[:, k].copy() for k in range(sys.dim)], [U[:, k].copy() for k in range(sys.dim)],
-                   np.asarray(a, float).copy(), fp, step_no)
+                   np.asarray(a, float).copy(), step_no)
 
 
-def range_analysis(sys: System, params: Params, units: HardwareUnits, steps: int | None = None) -> dict:
-    """Peak |value| of every datapath quantity over every step of the float datapath.
+def range_analysis(sys: System, params: Params, units: HardwareUnits, steps: int | None = None):
+    """Peak |value| of every datapath quantity over every step of the float datapath, and the typical
+    per-step increment of each state (x, u, a: the median over steps of the largest increment of any item).
 
     The float datapath equals the golden model up to float rounding (tests/test_datapath.py), so this
     is the range analysis of a golden run, including short transients such as impacts.
+    Returns (peaks, increments).
     """
     ar = FloatArith()
     st = float_state(sys, units, sys.x0, sys.v0, sys.a0)
-    for _ in range(sys.n_steps if steps is None else steps):
-        st = step(ar, st, params)
+    n = sys.n_steps if steps is None else steps
+    inc = {q: np.zeros(n) for q in ("x", "u", "a")}
+    for k in range(n):
+        new = step(ar, st, params)
+        inc["x"][k] = max(float(np.max(np.abs(u))) for u in new.U)
+        inc["u"][k] = max(float(np.max(np.abs(u1 - u0))) for u0, u1 in zip(st.U, new.U))
+        inc["a"][k] = float(np.max(np.abs(new.A - st.A))) if new.A.size else 0.0
+        st = new
+    increments = {q: _typical_increment(v) for q, v in inc.items() if n and not (q == "a" and params.fixed_a)}
     peaks = dict(ar.peak)
     # quantities the run never reached (a contact that never happens) still need formats: take their
     # ranges from one step of the initial state with every gate open
@@ -49,26 +57,31 @@ def range_analysis(sys: System, params: Params, units: HardwareUnits, steps: int
     # the probe: its range is then that of 1/sqrt(peak |k_f v_t|^2), with headroom for smaller inputs
     if "fmag2" in peaks and "finv" not in peaks:
         peaks["finv"] = FRICTION_SCALE_HEADROOM / np.sqrt(max(peaks["fmag2"], np.finfo(float).tiny))
-    if params.damper is not None:      # the tables span the whole curve, whatever the run visited
-        dp = params.damper
-        peaks["c2"] = max(peaks.get("c2", 0.0), dp.c1 + dp.c_max)
-        peaks["ic12"] = max(peaks.get("ic12", 0.0), 1.0 / (dp.c1 + dp.c_min))
-        peaks["force"] = max(peaks.get("force", 0.0), dp.f2)
-    return peaks
+    return peaks, increments
+
+
+MOTION_FRACTION = 1e-3     # steps whose largest increment is below this fraction of the run's peak are at rest
+
+
+def _typical_increment(per_step: np.ndarray) -> float:
+    """The median of the per-step largest increments over the steps in motion (an object at rest, whose
+    increments decay below any LSB, is not stagnating)."""
+    moving = per_step[per_step >= MOTION_FRACTION * per_step.max()] if per_step.size else per_step
+    return float(np.median(moving)) if moving.size else 0.0
 
 
 def function_units(fmt: FormatSet, params: Params) -> dict:
-    from .funcunits import DamperTable, Rsqrt
+    from .funcunits import InverseTable, Rsqrt
     pre = fmt.preset
     units = {}
     for out, inp in RSQRT_INPUTS.items():
         if out in fmt and inp in fmt:
             units[out] = Rsqrt(fmt[inp], fmt[out], seed_bits=pre.rsqrt_seed_bits, newton_steps=pre.rsqrt_newton,
                                name=out)
-    if params.damper is not None:
-        dp = params.damper
-        units["damper"] = DamperTable(fmt["force"], fmt["c2"], fmt["ic12"], dp.c1, dp.c_min, dp.c_max,
-                                      dp.f1, dp.f2, segments_log2=pre.damper_segments_log2)
+    for name, curve in params.curves.items():
+        if all(q in fmt for q in (curve.input, *curve.outputs)):
+            units[name] = InverseTable(fmt[curve.input], [fmt[q] for q in curve.outputs], curve,
+                                       segments_log2=pre.damper_segments_log2)
     return units
 
 
@@ -83,25 +96,53 @@ class BitTrue:
         self.units = HardwareUnits.of(sys)
         self.params = Params.of(sys, self.units)
         if formats is None:
-            peaks = range_analysis(sys, self.params, self.units, range_steps)
-            formats = derive(peaks, PRESETS[preset], {**sys.formats, **(overrides or {})})
+            peaks, increments = range_analysis(sys, self.params, self.units, range_steps)
+            formats = derive(peaks, PRESETS[preset], {**sys.formats, **(overrides or {})}, increments)
         self.formats = formats
+        self.preset = preset
         self.sat = Saturations()          # saturations of the run (what the hardware counts)
         self.const_sat = Saturations()    # saturations converting constants and the initial state
         self.ar = FixedArith(formats, function_units(formats, self.params), self.sat, self.const_sat)
+        self._check_representable()
 
-    def initial_state(self) -> HwState:
-        sys, fm = self.sys, self.formats
+    def _check_representable(self):
+        """Refuse formats under which a constant or the initial state saturates or rounds to nothing: one
+        dry step on a throw-away arithmetic converts every constant the datapath uses."""
+        dry = FixedArith(self.formats, self.ar.units, Saturations(), Saturations(), Saturations())
+        step(dry, self.initial_state(dry), self.params)
+        bad = [(q, f"{q} saturates ({n} value{'s' * (n > 1)})") for q, n in dry.const_sat.most_common()]
+        bad += [(q, f"{q} rounds to zero ({n} value{'s' * (n > 1)})") for q, n in dry.lost.most_common()]
+        if bad:
+            fmt = ", ".join(f"{q} = {self.formats[q]}" for q in dict.fromkeys(q for q, _ in bad) if q in self.formats)
+            raise FormatError(f"scene '{self.sys.name}', preset {self.preset}: the number formats cannot hold "
+                              f"the scene's constants or initial state: {'; '.join(m for _, m in bad)} "
+                              f"(formats: {fmt}); use a wider preset or fix the [formats] table")
+
+    def stagnation_messages(self) -> list[str]:
+        """One warning per stagnating state (FormatSet.stagnation), with the increment and LSB in SI units."""
+        si = {"x": (self.units.to_length, "m"), "u": (self.units.to_velocity, "m/s")}
+        out = []
+        for f in self.formats.stagnation():
+            q = f["quantity"]
+            conv, unit = si.get(q, (lambda v: v, ""))
+            out.append(f"scene '{self.sys.name}', preset {self.preset}: {q} stagnates: its typical increment "
+                       f"{f['what']}, {float(conv(f['increment'])):.3g}{' ' + unit if unit else ''}, is "
+                       f"{f['lsbs']:.2g} LSB of its format {self.formats[q]} (LSB "
+                       f"{float(conv(f['lsb'])):.3g}{' ' + unit if unit else ''}): round to nearest loses that "
+                       f"motion; use a wider preset, a larger dt or a [formats] override")
+        return out
+
+    def initial_state(self, ar: FixedArith | None = None) -> HwState:
+        sys = self.sys
         X = self.units.length(sys.x0)
         U = self.units.velocity(sys.v0)
-        return HwState([fm["x"].from_float(X[:, k], self.const_sat, "x") for k in range(sys.dim)],
-                       [fm["u"].from_float(U[:, k], self.const_sat, "u") for k in range(sys.dim)],
-                       fm["a"].from_float(sys.a0, self.const_sat, "a"),
-                       np.zeros(sys.n_elements, np.int64), 0)
+        conv = (ar or self.ar).convert_constant
+        return HwState([conv("x", X[:, k]) for k in range(sys.dim)], [conv("u", U[:, k]) for k in range(sys.dim)],
+                       conv("a", sys.a0), 0)
 
     def step(self, st: HwState) -> None:
         new = step(self.ar, st, self.params)
-        st.X, st.U, st.A, st.FP, st.step = new.X, new.U, new.A, new.FP, new.step
+        st.X, st.U, st.A, st.step = new.X, new.U, new.A, new.step
 
     def frame(self, st: HwState):
         fm = self.formats

@@ -5,10 +5,12 @@ equals the golden model up to float rounding, a test) and `FixedArith` runs it b
 (the strings) select the number formats in hw/formats.py. Order of operations within a step:
 
   elements    d = x_j - x_i, du = u_j - u_i, l2 = sum d^2, inv_l = rsqrt(l2), l = l2 inv_l, e = d inv_l,
-              ldot = sum e du, s = a l - L, k1s = k1 s,
-              [c2, c1 + c2, 1/(c1 + c2) from |T_prev| by table, or constants]
-              num = (c2 - (c1 + c2) a) ldot - k1s, adot = (num / (c1 + c2)) inv_l, clamp on a bound,
-              T = k1s + c1 (adot l + a ldot)   [viscoelastic: T = k1s + (c1 a_max) ldot]
+              ldot = sum e du, s = a l - L, k1s = k1 s, the drive Y = k1s + c1 ldot,
+              T, w' = Phi(Y), W(Y)  [constant damper: Y c2/(c1 + c2), Y/(c1 + c2); nonlinear: sign, linear
+              pieces below Y1 / above Y2, the Phi table between], Wa = (1 - a) ldot, adot = (Wa - w') inv_l;
+              stops: a on a_max and adot > 0: T = k1s + c1 (a ldot); a on a_min and adot < 0: T = Psi(Wa)
+              [c2 Wa, or linear pieces and the Psi table]; adot = 0 on a stop
+              [viscoelastic: T = k1s + (c1 a_max) ldot]
               fe = T e: +fe to node i, -fe to node j
   topology    per (vertex k, facet): the facet normal n, distance d, foot weights w, normal speed;
               f = K (eps - d) - C ddot where d <= eps; +f n to k, -w f n to the facet (exact sum 0)
@@ -18,7 +20,7 @@ equals the golden model up to float rounding, a test) and `FixedArith` runs it b
               the facet (exact sum 0)
   floor       N = max(0, -K h - C u_z) where h < 0, friction -clip(k_f u_t, mu N)
   loads       constant forces in their time windows
-  nodes       u += mu_i F + g; pinned: u = 0; x += u;  a = clip(a + adot, a_min, a_max); f_prev = |T|
+  nodes       u += mu_i F + g; pinned: u = 0; x += u;  a = clip(a + adot, a_min, a_max)
 """
 from __future__ import annotations
 
@@ -26,7 +28,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from golden.elements import DamperLaw
 from golden.model import System
+from .funcunits import OddCurve
 from .units import HardwareUnits
 
 
@@ -34,22 +38,15 @@ class NotSupported(ValueError):
     """A scene feature the bit-true model and the hardware do not implement (yet)."""
 
 
-@dataclass
-class DamperParams:
-    """The nonlinear damper in hardware units (scalars: one material per scene for tables)."""
-    c1: float
-    c_min: float
-    c_max: float
-    f1: float
-    f2: float
+def phi_curve(law: DamperLaw) -> OddCurve:
+    """Phi = G^-1 on its nonlinear piece, with the damper's rate H beside it (outputs T and w')."""
+    return OddCurve("phi", "drive", law.G, law.dG, law.d2G, law.f1, law.f2, ("force", "wdot"),
+                    ((law.H, law.dH, law.d2H),))
 
-    @property
-    def B(self):
-        return np.log(self.c_max / self.c_min) / (self.f2 - self.f1)
 
-    @property
-    def A(self):
-        return self.c_max * np.exp(self.B * self.f1)
+def psi_curve(law: DamperLaw) -> OddCurve:
+    """Psi = H^-1 on its nonlinear piece (the damper's force from its rate, on the a_min stop)."""
+    return OddCurve("psi", "wdot", law.H, law.dH, law.d2H, law.f1, law.f2, ("force",))
 
 
 @dataclass
@@ -66,10 +63,11 @@ class Params:
     a_min: object
     a_max: object
     fixed_a: bool
-    c2: object = None          # constant damper
-    c12: object = None
-    ic12: object = None
-    damper: DamperParams | None = None
+    c2: object = None          # constant damper: Psi(W) = c2 W
+    phi_s: object = None       # constant damper: Phi(Y) = phi_s Y, phi_s = c2 / (c1 + c2)
+    ic12: object = None        # constant damper: w' = ic12 Y, ic12 = 1 / (c1 + c2)
+    damper: DamperLaw | None = None      # the nonlinear damper (one material per scene)
+    curves: dict = field(default_factory=dict)     # "phi", "psi": the inverse tables' curves
     inv_mass: object = None    # None: uniform mass (mu = 1, no multiplier)
     gravity: np.ndarray | None = None
     free: np.ndarray = None    # (N,) bool
@@ -107,12 +105,14 @@ class Params:
                 c1, c_min, c_max, A, B = (float(v[0]) for v in vals)
                 f1 = float(np.log(A / c_max) / B)
                 f2 = float(np.log(A / c_min) / B)
-                p.damper = DamperParams(float(u.damping(c1)), float(u.damping(c_min)), float(u.damping(c_max)),
-                                        float(u.force(f1)), float(u.force(f2)))
+                p.damper = DamperLaw(float(u.damping(c1)), float(u.damping(c_min)), float(u.damping(c_max)),
+                                     float(u.force(f1)), float(u.force(f2)))
+                p.curves = {"phi": phi_curve(p.damper), "psi": psi_curve(p.damper)}
             else:
                 p.c2 = uniform(u.damping(el.c_min))
-                p.c12 = uniform(np.asarray(p.c1) + np.asarray(p.c2))
-                p.ic12 = uniform(1.0 / np.asarray(p.c12))
+                c12 = np.asarray(p.c1) + np.asarray(p.c2)
+                p.phi_s = uniform(np.asarray(p.c2) / c12)
+                p.ic12 = uniform(1.0 / c12)
         m_ratio = u.m_ref / sys.mass
         p.inv_mass = None if np.all(m_ratio[~sys.pinned] == 1.0) else np.where(sys.pinned, 0.0, m_ratio)
         p.gravity = u.acceleration(sys.gravity) if np.any(sys.gravity != 0) else None
@@ -150,7 +150,6 @@ class HwState:
     X: list            # D arrays (N,)
     U: list
     A: np.ndarray      # (E,)
-    FP: np.ndarray     # (E,) |T| of the previous step
     step: int = 0
 
 
@@ -164,11 +163,10 @@ def step(ar, st: HwState, p: Params) -> HwState:
     X = [ar.state("x", x) for x in st.X]
     U = [ar.state("u", u) for u in st.U]
     A = ar.state("a", st.A)
-    FP = ar.state("force", st.FP)
 
     # ---- elements
     take = lambda vs, idx: [ar.take(v, idx) for v in vs]
-    fe, newA, newFP = element_kernel(ar, p, take(X, p.i), take(X, p.j), take(U, p.i), take(U, p.j), A, FP)
+    fe, newA = element_kernel(ar, p, take(X, p.i), take(X, p.j), take(U, p.i), take(U, p.j), A)
     parts = [[(fe[k], p.i), (ar.neg(fe[k]), p.j)] for k in range(D)]
 
     # ---- topology preservation, collisions: (vertex, facet) pairs
@@ -186,7 +184,7 @@ def step(ar, st: HwState, p: Params) -> HwState:
     # ---- nodes
     newX, newU = node_kernel(ar, p, X, U, F_elem, st.step, _node_flags(p))
     return HwState([x.x for x in newX], [u.x for u in newU], newA.x if newA is not None else st.A,
-                   newFP.x if newFP is not None else st.FP, st.step + 1)
+                   st.step + 1)
 
 
 def _node_flags(p: Params) -> dict:
@@ -210,11 +208,8 @@ def load_window(p: Params, n: int) -> tuple[int, int]:
     return a, b
 
 
-def element_kernel(ar, p: Params, Xi, Xj, Ui, Uj, A, FP):
-    """One element (per item): returns (fe per dimension, new a or None, new |T| or None).
-
-    Node i receives +fe, node j -fe (the same word).
-    """
+def element_kernel(ar, p: Params, Xi, Xj, Ui, Uj, A):
+    """One element (per item): returns (fe per dimension, new a or None). Node i receives +fe, node j -fe."""
     D = p.dim
     d = [ar.sub(Xj[k], Xi[k], "d") for k in range(D)]
     du = [ar.sub(Uj[k], Ui[k], "du") for k in range(D)]
@@ -225,30 +220,70 @@ def element_kernel(ar, p: Params, Xi, Xj, Ui, Uj, A, FP):
     ldot = ar.sum([ar.mul(e[k], du[k], "ldot") for k in range(D)], "ldot")
     s = ar.sub(ar.mul(A, l, "l"), ar.param("L", p.L), "s")
     k1s = ar.mul(ar.param("k1", p.k1), s, "force") if p.k1 is not None else ar.zeros("force", len(p.i))
-    newA = newFP = None
+    newA = None
     if p.fixed_a:
         T = ar.add(k1s, ar.mul(ar.param("c1a", p.c1a), ldot, "force"), "force")
     else:
-        if p.damper is not None:
-            c2, c12, ic12 = ar.damper(FP, p.damper)
-        else:
-            c2, c12, ic12 = ar.param("c2", p.c2), ar.param("c12", p.c12), ar.param("ic12", p.ic12)
-        g = ar.sub(c2, ar.mul(c12, A, "c12"), "c12")
-        num = ar.sub(ar.mul(g, ldot, "force"), k1s, "force")
-        adot = ar.mul(ar.mul(num, ic12, "num_ic"), inv_l, "adot")
+        c1 = ar.param("c1", p.c1)
+        Y = ar.add(k1s, ar.mul(c1, ldot, "drive"), "drive")
+        T, wd = _phi(ar, p, Y)
+        Wa = ar.mul(ar.sub(ar.const("a", 1.0), A, "a"), ldot, "wdot")     # the damper's rate, Voigt part rigid
+        adot = ar.mul(ar.sub(Wa, wd, "wdot"), inv_l, "adot")
         zero = ar.zeros("adot", len(p.i))
         a_min, a_max = ar.param("a", p.a_min), ar.param("a", p.a_max)
-        outward = (ar.le(A, a_min) & ar.lt(adot, zero)) | (ar.le(a_max, A) & ar.lt(zero, adot))
-        adot = ar.select(~outward, adot, zero)
-        sdot = ar.add(ar.mul(adot, l, "sdot"), ar.mul(A, ldot, "sdot"), "sdot")
-        T = ar.add(k1s, ar.mul(ar.param("c1", p.c1), sdot, "force"), "force")
+        at_lo, at_hi = ar.le(A, a_min), ar.le(a_max, A)
+        hi_stop = at_hi & (ar.lt(zero, adot) | at_lo)         # a_min = a_max: the damper is rigid
+        lo_stop = at_lo & ar.lt(adot, zero) & ~at_hi
+        T_hi = ar.add(k1s, ar.mul(c1, ar.mul(A, ldot, "sdot"), "force"), "force")
+        on_lo = ar.gate(lo_stop)          # Psi only for the elements on the a_min stop
+        if not on_lo.empty:
+            T = ar.select(lo_stop, on_lo.lift(_psi(ar, p, on_lo.take(Wa), on_lo)), T)
+        T = ar.select(hi_stop, T_hi, T)
+        adot = ar.select(hi_stop | lo_stop, zero, adot)
         a = ar.add(A, adot, "a")
         a = ar.select(ar.le(a, a_min), a_min, a)
         newA = ar.select(ar.le(a_max, a), a_max, a)
     fe = [ar.mul(T, e[k], "fe") for k in range(D)]
-    if p.damper is not None:
-        newFP = ar.select(ar.lt(T, ar.zeros("force", len(p.i))), ar.neg(T), T)
-    return fe, newA, newFP
+    return fe, newA
+
+
+def _odd_piecewise(ar, x, curve, slopes, zero, within=None):
+    """An odd curve's inverse (and companions) at x: sign, the linear pieces below / above the table (the
+    constants `slopes` = [(lo, hi) per output]), the inverse table between them; the table unit says
+    which piece the magnitude lies on. Each linear piece is formed under its gate (nested in `within`,
+    the gate of x's items), so a product no item uses neither sets a format nor counts a saturation."""
+    neg = ar.lt(x, zero)
+    mag = ar.select(neg, ar.neg(x), x)
+    below, above, tabs = ar.inverse(mag, curve)
+    pieces = [(within.gate(c) if within is not None else ar.gate(c), c) for c in (above, below)]
+    out = []
+    for q, v, (lo, hi) in zip(curve.outputs, tabs, slopes):
+        for (g, cond), (cq, slope) in zip(pieces, (hi, lo)):
+            if not g.empty:
+                v = ar.select(cond, g.lift(ar.mul(ar.const(cq, slope), g.take(mag), q)), v)
+        out.append(ar.select(neg, ar.neg(v), v))
+    return out
+
+
+def _phi(ar, p: Params, Y):
+    """(T, w') = (Phi(Y), W(Y)): the element's tension and its damper's rate from the drive Y."""
+    if p.damper is None:
+        return ar.mul(ar.param("phi_s", p.phi_s), Y, "force"), ar.mul(ar.param("ic12", p.ic12), Y, "wdot")
+    law = p.damper
+    (t_lo, w_lo), (t_hi, w_hi) = law.slopes(law.c_max), law.slopes(law.c_min)
+    slopes = [(("phi_lo", t_lo), ("phi_hi", t_hi)), (("rate_lo", w_lo), ("rate_hi", w_hi))]
+    return _odd_piecewise(ar, Y, p.curves["phi"], slopes, ar.zeros("drive", 1))
+
+
+def _psi(ar, p: Params, W, within):
+    """Psi(W): the damper's force at its rate W (the Voigt part on its a_min stop), W the items of the
+    gate `within`."""
+    if p.damper is None:
+        c2 = ar.param("c2", p.c2)
+        return ar.mul(within.take(c2) if np.ndim(p.c2) else c2, W, "force")
+    law = p.damper
+    slopes = [(("psi_lo", law.c_max), ("psi_hi", law.c_min))]
+    return _odd_piecewise(ar, W, p.curves["psi"], slopes, ar.zeros("wdot", 1), within)[0]
 
 
 def node_kernel(ar, p: Params, X, U, F_elem, step_no, flags):

@@ -7,7 +7,7 @@ One place defines them: each quantity named in hw/datapath.py gets a fixed-point
   of each quantity, times a headroom, sets its integer bits; the rest of the word is fraction.
   a, unit vectors and weights have fixed ranges ([0, 1] / [-1, 1]) and fixed formats.
 - Parameters (k1, c1, ...) are constants fitted to their own value with operand-width words.
-Function units are configured per preset too (rsqrt seed bits and Newton steps, damper table size).
+Function units are configured per preset too (rsqrt seed bits and Newton steps, inverse table size).
 A scene may override any quantity's format in its [formats] table, e.g. `x = "SQ(2, 30)"`.
 """
 from __future__ import annotations
@@ -32,12 +32,11 @@ QUANTITIES = {
     "e": ("fixed_operand", "unit vector component"),
     "ldot": ("operand", "stretch rate"),
     "s": ("operand", "Voigt extension a l - L"),
-    "force": ("operand", "element tension T, k1 s, numerator of adot, |T_prev|, penalty forces"),
-    "c2": ("operand", "damper coefficients c2 and c1 + c2, and c2 - (c1 + c2) a"),
-    "ic12": ("operand", "1 / (c1 + c2)"),
-    "num_ic": ("operand", "numerator / (c1 + c2)"),
+    "force": ("operand", "element tension T = Phi(Y) or Psi(W), k1 s, penalty forces"),
+    "drive": ("operand", "element drive Y = k1 s + c1 ldot (the Voigt force with a rigid damper), c1 ldot"),
+    "wdot": ("operand", "damper rates: w' = W(Y), (1 - a) ldot and their difference"),
     "adot": ("operand", "rate of a per step"),
-    "sdot": ("operand", "Voigt stretch rate adot l + a ldot"),
+    "sdot": ("operand", "a ldot (the Voigt part's stretch rate on the a_max stop)"),
     "fe": ("operand", "force vector component of an element or pair"),
     "facc": ("accumulator", "node force accumulator: fe's binary point, exact sums (internal forces cancel)"),
     "fnode": ("operand", "node force, multiplier operand of the per-node mass ratio"),
@@ -59,10 +58,13 @@ QUANTITIES = {
     "fmag2": ("operand", "friction: squared tangential force"),
     "finv": ("operand", "friction: 1 / |tangential force|"),
 }
-# the c12 quantity shares the c2 format (the damper table returns both in one format)
-ALIASES = {"c12": "c2"}
-# constants: fitted to their own value
-CONSTANTS = {"L": "l", "k1": None, "c1": None, "c1a": None, "eps": None, "topo_K": None, "topo_C": None,
+# quantities that share another's format
+ALIASES: dict = {}
+# constants: fitted to their own value (the damper's: c2 and the slopes of Phi, W and Psi on their
+# linear pieces, hw/datapath.py)
+CONSTANTS = {"L": "l", "k1": None, "c1": None, "c1a": None, "c2": None, "phi_s": None, "ic12": None,
+             "phi_lo": None, "phi_hi": None, "rate_lo": None, "rate_hi": None, "psi_lo": None, "psi_hi": None,
+             "eps": None, "topo_K": None, "topo_C": None,
              "floor_K": None, "floor_C": None, "floor_kf": None, "mu": None, "inv_mass": None, "g": None,
              "coll_h": None, "coll_K": None, "coll_C": None, "coll_kf": None,
              "load": "facc"}
@@ -114,11 +116,35 @@ def parse_shape(text: str) -> Shape:
     return (SQ if m.group(1) == "SQ" else UQ)(int(m.group(2)), int(m.group(3)))
 
 
+STAGNATION_LSBS = 2.0     # a state whose typical per-step increment is below this many LSBs stagnates
+# state -> (what its per-step increment is, the quantity whose LSB it is measured against)
+STAGNATION_STATES = {"x": "v dt (the displacement of a step)", "u": "F dt / m (the velocity change of a step)",
+                     "a": "adot dt (the change of a of a step)"}
+
+
+class FormatError(ValueError):
+    """Number formats under which the scene cannot run right (a constant or the initial state does not fit)."""
+
+
 @dataclass
 class FormatSet:
     preset: Preset
     shapes: dict = field(default_factory=dict)      # quantity -> Shape
     peaks: dict = field(default_factory=dict)       # quantity -> peak |value| seen in range analysis
+    increments: dict = field(default_factory=dict)  # state -> typical per-step increment in range analysis
+
+    def stagnation(self, min_lsbs: float = STAGNATION_LSBS) -> list[dict]:
+        """States whose typical per-step increment (the median over the range analysis's steps of the
+        largest increment of any item) is below `min_lsbs` LSBs of their format: round to nearest then
+        loses the motion (MODEL.md section 8), so creep, sinking or recovery silently vanish."""
+        out = []
+        for q, inc in self.increments.items():
+            if q in self.shapes and inc > 0.0:
+                lsb = self.shapes[q].lsb
+                if inc < min_lsbs * lsb:
+                    out.append({"quantity": q, "increment": inc, "lsb": lsb, "lsbs": inc / lsb,
+                                "what": STAGNATION_STATES.get(q, q)})
+        return out
 
     def __getitem__(self, q) -> Shape:
         return self.shapes[ALIASES.get(q, q)]
@@ -133,9 +159,10 @@ class FormatSet:
         return {q: {**s.to_dict(), "format": str(s), "peak": self.peaks.get(q)} for q, s in self.shapes.items()}
 
 
-def derive(peaks: dict, preset: Preset, overrides: dict | None = None) -> FormatSet:
-    """Formats for every quantity seen in the range analysis (`peaks`: quantity -> max |value|)."""
-    fs = FormatSet(preset, peaks=dict(peaks))
+def derive(peaks: dict, preset: Preset, overrides: dict | None = None, increments: dict | None = None) -> FormatSet:
+    """Formats for every quantity seen in the range analysis (`peaks`: quantity -> max |value|);
+    `increments`: the states' typical per-step increments, kept for `FormatSet.stagnation`."""
+    fs = FormatSet(preset, peaks=dict(peaks), increments=dict(increments or {}))
     ws, wo = preset.state, preset.operand
     for q, (cls, _) in QUANTITIES.items():
         if q not in peaks and q not in ("a", "e", "w"):

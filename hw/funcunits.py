@@ -1,4 +1,4 @@
-"""Function units of the datapath, bit-true: reciprocal square root and the nonlinear damper tables.
+"""Function units of the datapath, bit-true: reciprocal square root and inverse tables (the damper).
 
 Both are vectorised NumPy int64 models that the hardware (Amaranth) reproduces bit for bit. Every
 intermediate has a stated format, every runtime rounding is `shift_round` (round to nearest, ties up),
@@ -13,7 +13,9 @@ exactly rounded product, as from a wide hardware multiplier.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from fractions import Fraction
+from typing import Callable
 
 import numpy as np
 
@@ -309,83 +311,115 @@ class Rsqrt:
                 "max_relative_error_bound": self.max_relative_error_bound()}
 
 
-# ------------------------------------------------------------------------------------------------ damper
+# ----------------------------------------------------------------------------------- inverse tables
 
-class DamperTable:
-    """The force-dependent damper c2(f), c1 + c2(f) and 1/(c1 + c2(f)) by table and linear interpolation.
+@dataclass(frozen=True)
+class OddCurve:
+    """A strictly increasing odd function y = g(t), convex on [t_lo, t_hi] (t_lo >= 0), with companions.
 
-    Physics: c2(f) = c_max for f <= f1, A exp(-B f) for f1 <= f <= f2, c_min for f >= f2, with
-    B = ln(c_max / c_min) / (f2 - f1), A = c_max exp(B f1). All parameters are real numbers in the units
-    of the formats (hardware units). Input: f_raw = |T| in f_shape (ff = f_shape.f fraction bits).
-    Outputs: c2 and c1 + c2 in c2_shape, 1/(c1 + c2) in inv_shape. S = segments_log2, P = frac_bits.
+    `g`, `dg`, `d2g` evaluate g and its first two derivatives on t in [t_lo, t_hi] (float64 arrays).
+    `companions`: functions c(t) tabulated beside the inverse, each as (c, dc, d2c); the table then also
+    gives c(g^-1(y)) (the damper's rate beside its force). `input`: the quantity of y; `outputs`: the
+    quantity of each output, the inverse first. Outside [g(t_lo), g(t_hi)] the curve is linear; the datapath handles those pieces.
+    """
+    name: str
+    input: str
+    g: Callable
+    dg: Callable
+    d2g: Callable
+    t_lo: float
+    t_hi: float
+    outputs: tuple
+    companions: tuple = ()
 
-    Constants (construction time, exact rational arithmetic):
-    - comparator thresholds F1 = floor(f1 2^ff) (clipped to f_shape.max_raw) and F2 = ceil(f2 2^ff)
-      (clipped to f_shape.max_raw + 1): f_raw <= F1 exactly when f <= f1, f_raw >= F2 exactly when f >= f2;
-    - K = 2^S / (f2 - f1) (segments per unit force) as an unsigned operand of scale_bits significant bits,
+
+def solve_increasing(g: Callable, y: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """t in [lo, hi] with g(t) = y for a strictly increasing g, by bisection to float64 resolution."""
+    y = np.asarray(y, np.float64)
+    a, b = np.full(y.shape, float(lo)), np.full(y.shape, float(hi))
+    for _ in range(1100):                   # halves the bracket until it is one float apart
+        m = 0.5 * (a + b)
+        if not np.any((m > a) & (m < b)):
+            break
+        right = g(m) < y
+        a, b = np.where(right, m, a), np.where(right, b, m)
+    return np.where(np.abs(g(a) - y) <= np.abs(g(b) - y), a, b)
+
+
+class InverseTable:
+    """The inverse t = g^-1(y) of a strictly increasing odd curve (and functions of t beside it) by table
+    and linear interpolation over the curve's nonlinear piece [y1, y2] = [g(t_lo), g(t_hi)], bit-true.
+
+    The model of MODEL.md section 2 v2 needs two: Phi = G^-1 (the element's tension from its drive, with the
+    damper's rate beside it) and Psi = H^-1 (the damper's force from its rate, on the a_min stop).
+
+    Input: raw y >= 0 (the magnitude; the datapath applies the sign and the linear pieces outside [y1, y2])
+    in `in_shape` (fy = in_shape.f fraction bits). Outputs: one raw value per entry of `out_shapes` (the
+    inverse, then the companions). S = segments_log2, P = frac_bits.
+
+    Constants (construction time, exact rational arithmetic where it matters):
+    - comparator thresholds Y1 = floor(y1 2^fy) (clipped to in_shape.max_raw) and Y2 = ceil(y2 2^fy)
+      (clipped to in_shape.max_raw + 1);
+    - K = 2^S / (y2 - y1) (segments per input unit) as an unsigned operand of scale_bits significant bits,
       rounded to nearest: K_raw in [2^(scale_bits-1), 2^scale_bits], K_q = K_raw 2^-kf;
-    - the offset OFF = round(f1 2^ff K_raw), an integer (< 2^61) in the units of the product f_raw K_raw;
-    - tables of 2^S + 1 entries at the breakpoints f_j = f1 + j (f2 - f1) / 2^S: c2(f_j) rounded to
-      nearest into c2_shape, and 1/(c1 + c2(f_j)) rounded to nearest into inv_shape. An entry that does
-      not fit its format is clamped to it and flagged (one flag bit per ROM word): every element that
-      uses a flagged entry counts one saturation per output;
-    - c1q = c1 rounded to nearest to c2_shape's fraction bits (not clamped; see c12 below).
+    - the offset OFF = round(y1 2^fy K_raw), an integer in the units of the product y_raw K_raw;
+    - tables of 2^S + 1 entries at the breakpoints y_j = y1 + j (y2 - y1) / 2^S: t_j = g^-1(y_j) solved by
+      bisection to float64 resolution (`solve_increasing`), and each output at t_j, rounded to nearest into
+      its format. An entry that does not fit is clamped and flagged: an item that uses a flagged entry
+      counts one saturation per output.
 
-    Per element (integers; fraction bits in brackets):
-    1. f_raw <= F1 (the c_max piece): pos = 0. f_raw >= F2 (the c_min piece): the end point,
-       idx = 2^S - 1, frac = 2^P. These are the function's own flat pieces, exact, not saturations.
-    2. Otherwise D = f_raw K_raw - OFF [ff + kf] (0 <= D < 2^61) and pos = shift_round(D, ff + kf - P) [P],
-       the position in segments (a left shift when ff + kf - P < 0), limited to the end point 2^(S+P)
-       (reached only by f within (f2 - f1)|K_q/K - 1| of f2 through the rounding of K: not a saturation).
+    Per item (integers; fraction bits in brackets):
+    1. y_raw <= Y1: pos = 0 (the first entry). y_raw >= Y2: the end point, idx = 2^S - 1, frac = 2^P.
+    2. Otherwise D = y_raw K_raw - OFF [fy + kf] (>= 0 where used) and pos = shift_round(D, fy + kf - P) [P]
+       (a left shift when fy + kf - P < 0), limited to the end point 2^(S+P).
     3. idx = pos >> P, frac = pos & (2^P - 1) (the end point: idx = 2^S - 1, frac = 2^P).
-    4. value = tab[idx] + shift_round(frac (tab[idx+1] - tab[idx]), P), for both tables: c2 in c2_shape,
-       inv in inv_shape. The result lies between the two entries, so it always fits.
-    5. c12 = c1q + c2, saturated into c2_shape (counted).
+    4. out = tab[idx] + shift_round(frac (tab[idx+1] - tab[idx]), P) for every table; between two entries,
+       so it always fits.
 
-    Error bounds (`error_bounds()`, real units, for elements that do not saturate), with h = (f2 - f1)/2^S:
-    - position: between f1 and f2 the unit interpolates at f_eff = f1 + h pos 2^-P with
-      |f_eff - f| <= df = (f2 - f1)|K_q/K - 1| + h 2^-P (|OFF - f1 2^ff K_raw| 2^-(ff+kf-P) + 1/2 if step 2
-      rounds) (`position_error_bound()`); outside, f_eff = f exactly as far as the function is concerned;
-    - linear interpolation of exact breakpoint values: h^2/8 max|g''| (g'' = B^2 c2 for c2, at most
-      B^2 c_max; for 1/(c1 + c2): g'' = B^2 u (u - c1)/(c1 + u)^3 with u = c2, maximised over
-      u in [c_min, c_max] at the ends and at u = c1 (2 +/- sqrt 3));
-    - g and the interpolant are Lipschitz with L = max|g'| (B c_max for c2; for the inverse
-      B max u/(c1 + u)^2 over the ends and u = c1): + L df;
-    - table rounding (1/2 LSB) plus the interpolation rounding (1/2 LSB): + 1 LSB of the output;
-    - c12 adds |c1q 2^-fc - c1| (<= 1/2 LSB) to the c2 bound.
+    Error bound (`error_bounds()`, real units, items on [y1, y2] that use no clamped entry), per output o:
+    - position: the unit interpolates at y_eff = y1 + h pos 2^-P, h = (y2 - y1) / 2^S, with
+      |y_eff - y| <= dy = (y2 - y1)|K_q/K - 1| + h 2^-P (|OFF - y1 2^fy K_raw| 2^-(fy+kf-P) + 1/2 if step 2
+      rounds) (`position_error_bound()`);
+    - interpolation of exact breakpoint values: h^2/8 max|o''| on each segment, with o'' = -g''/g'^3 for
+      the inverse and (c'' g' - c' g'')/g'^3 for a companion c (t = g^-1(y)), maximised over 17 points
+      of every segment and taken 5 % higher (the curves are smooth on [t_lo, t_hi]);
+    - o is Lipschitz with L = max|o'| (o' = 1/g' or c'/g', the same sampling): + L dy;
+    - table rounding (1/2 LSB) plus the interpolation rounding (1/2 LSB): + 1 LSB of the output.
     """
 
-    def __init__(self, f_shape: Shape, c2_shape: Shape, inv_shape: Shape, c1: float, c_min: float,
-                 c_max: float, f1: float, f2: float, segments_log2: int = 8, frac_bits: int = 16,
-                 scale_bits: int = 25, name: str = "damper"):
-        self.f_shape = _check_shape("DamperTable f_shape", f_shape)
-        self.c2_shape = _check_shape("DamperTable c2_shape", c2_shape)
-        self.inv_shape = _check_shape("DamperTable inv_shape", inv_shape)
-        self.S = _check_int("DamperTable segments_log2", segments_log2, 1, 12)
-        self.P = _check_int("DamperTable frac_bits", frac_bits, 1, 24)
-        self.scale_bits = _check_int("DamperTable scale_bits", scale_bits, 8, 29)
-        self.name = str(name)
-        c1, c_min, c_max = (_check_real(f"DamperTable {n}", v) for n, v in
-                            (("c1", c1), ("c_min", c_min), ("c_max", c_max)))
-        f1, f2 = _check_real("DamperTable f1", f1), _check_real("DamperTable f2", f2)
-        if not 0 < c_min <= c_max:
-            raise ValueError(f"DamperTable: need 0 < c_min <= c_max, got c_min = {c_min:g}, c_max = {c_max:g}")
-        if c1 < 0:
-            raise ValueError(f"DamperTable: need c1 >= 0, got c1 = {c1:g}")
-        if not 0 <= f1 < f2:
-            raise ValueError(f"DamperTable: need 0 <= f1 < f2, got f1 = {f1:g}, f2 = {f2:g}")
-        if f2 - f1 < f_shape.lsb:
-            raise ValueError(f"DamperTable: f2 - f1 = {f2 - f1:g} is below one LSB ({f_shape.lsb:g}) of "
-                             f"f_shape {f_shape}; the exponential piece cannot be resolved")
-        self.c1, self.c_min, self.c_max, self.f1, self.f2 = c1, c_min, c_max, f1, f2
-        self.B = math.log(c_max / c_min) / (f2 - f1)
-        self.A = c_max * math.exp(self.B * f1)
-        S, P, sb, ff = self.S, self.P, self.scale_bits, f_shape.f
-        F1x, F2x = Fraction(f1) * Fraction(2) ** ff, Fraction(f2) * Fraction(2) ** ff   # exact
-        self.F1 = min(math.floor(F1x), f_shape.max_raw)
-        self.F2 = min(math.ceil(F2x), f_shape.max_raw + 1)
-        # K = 2^S / (f2 - f1), rounded to nearest with scale_bits significant bits
-        K = Fraction(2 ** S) / (Fraction(f2) - Fraction(f1))
+    SAMPLES_PER_SEGMENT = 17
+    SAMPLING_MARGIN = 1.05
+
+    def __init__(self, in_shape: Shape, out_shapes, curve: OddCurve, segments_log2: int = 8,
+                 frac_bits: int = 16, scale_bits: int = 25, name: str | None = None):
+        self.in_shape = _check_shape("InverseTable in_shape", in_shape)
+        if not isinstance(curve, OddCurve):
+            raise ValueError(f"InverseTable needs an OddCurve, got {curve!r}")
+        out_shapes = tuple(out_shapes)
+        if len(out_shapes) != 1 + len(curve.companions):
+            raise ValueError(f"InverseTable: {len(out_shapes)} output formats for 1 inverse and "
+                             f"{len(curve.companions)} companions")
+        self.out_shapes = tuple(_check_shape(f"InverseTable output {k}", s) for k, s in enumerate(out_shapes))
+        self.S = _check_int("InverseTable segments_log2", segments_log2, 1, 12)
+        self.P = _check_int("InverseTable frac_bits", frac_bits, 1, 24)
+        self.scale_bits = _check_int("InverseTable scale_bits", scale_bits, 8, 29)
+        self.curve = curve
+        self.name = str(curve.name if name is None else name)
+        t_lo, t_hi = _check_real("InverseTable t_lo", curve.t_lo), _check_real("InverseTable t_hi", curve.t_hi)
+        if not 0 <= t_lo < t_hi:
+            raise ValueError(f"InverseTable: need 0 <= t_lo < t_hi, got t_lo = {t_lo:g}, t_hi = {t_hi:g}")
+        y1, y2 = float(curve.g(np.float64(t_lo))), float(curve.g(np.float64(t_hi)))
+        if not (math.isfinite(y1) and math.isfinite(y2) and 0 <= y1 < y2):
+            raise ValueError(f"InverseTable: the curve must increase on [t_lo, t_hi], got g = {y1:g} .. {y2:g}")
+        if y2 - y1 < in_shape.lsb:
+            raise ValueError(f"InverseTable: y2 - y1 = {y2 - y1:g} is below one LSB ({in_shape.lsb:g}) of "
+                             f"in_shape {in_shape}; the nonlinear piece cannot be resolved")
+        self.t_lo, self.t_hi, self.y1, self.y2 = t_lo, t_hi, y1, y2
+        S, P, sb, fy = self.S, self.P, self.scale_bits, in_shape.f
+        Y1x, Y2x = Fraction(y1) * Fraction(2) ** fy, Fraction(y2) * Fraction(2) ** fy   # exact
+        self.Y1 = min(math.floor(Y1x), in_shape.max_raw)
+        self.Y2 = min(math.ceil(Y2x), in_shape.max_raw + 1)
+        K = Fraction(2 ** S) / (Fraction(y2) - Fraction(y1))
         ex = K.numerator.bit_length() - K.denominator.bit_length()      # 2^(ex-1) <= K < 2^(ex+1)
         if K >= Fraction(2) ** ex:
             ex += 1                                                     # now 2^(ex-1) <= K < 2^ex
@@ -393,54 +427,55 @@ class DamperTable:
         self.K_raw = math.floor(K * Fraction(2) ** self.kf + Fraction(1, 2))
         self.K_q = self.K_raw * 2.0 ** -self.kf
         self.K_rel_error = float(abs(Fraction(self.K_raw) * Fraction(2) ** -self.kf / K - 1))
-        self.pos_shift = ff + self.kf - P
-        if self.F1 < f_shape.max_raw:                   # the interpolated piece is reachable
-            off = F1x * self.K_raw
+        self.pos_shift = fy + self.kf - P
+        if self.Y1 < in_shape.max_raw:                  # the interpolated piece is reachable
+            off = Y1x * self.K_raw
             self.OFF = math.floor(off + Fraction(1, 2))
             self.OFF_error = float(abs(self.OFF - off))
         else:
             self.OFF, self.OFF_error = 0, 0.0
-        # tables at the breakpoints
+        # breakpoints and their exact inverse
         j = np.arange((1 << S) + 1, dtype=np.float64)
-        c2 = c_max * (c_min / c_max) ** (j / (1 << S))  # = A exp(-B f_j), computed from the end values
-        c2[0], c2[-1] = c_max, c_min
-        self.breakpoints = f1 + j * (f2 - f1) / (1 << S)
-        self.tab_c2, self.clip_c2 = self._rom(c2, c2_shape)
-        self.tab_inv, self.clip_inv = self._rom(1.0 / (c1 + c2), inv_shape)
-        self.c1_raw = int(_round_raw(c1, c2_shape.f))
-        # tab[j + 1] - tab[j] of both tables, precomputed (exact integers): one lookup instead of two
-        self._slope_c2, self._slope_inv = np.diff(self.tab_c2), np.diff(self.tab_inv)
+        self.breakpoints = y1 + j * (y2 - y1) / (1 << S)
+        t = solve_increasing(curve.g, self.breakpoints, t_lo, t_hi)
+        t[0], t[-1] = t_lo, t_hi
+        self.t_breakpoints = t
+        self.tabs, self.clips = [], []
+        for values, shape in zip(self._outputs(t), self.out_shapes):
+            raw = _round_raw(values, shape.f)
+            self.clips.append((raw < shape.min_raw) | (raw > shape.max_raw))
+            self.tabs.append(np.clip(raw, shape.min_raw, shape.max_raw))
+        # tab[j + 1] - tab[j], precomputed (exact integers): one lookup instead of two
+        self._slopes = [np.diff(tab) for tab in self.tabs]
+        self._bounds = None
 
-    @staticmethod
-    def _rom(values, shape: Shape):
-        raw = _round_raw(values, shape.f)
-        clipped = (raw < shape.min_raw) | (raw > shape.max_raw)
-        return np.clip(raw, shape.min_raw, shape.max_raw), clipped
+    def _outputs(self, t):
+        return [np.asarray(t, np.float64)] + [c(t) for c, _, _ in self.curve.companions]
 
     # ---- the unit
-    def __call__(self, f_raw: np.ndarray, sat: Saturations | None = None):
-        f = _check_raw(f_raw, self.f_shape, f"DamperTable({self.f_shape})")
+    def __call__(self, y_raw: np.ndarray, sat: Saturations | None = None):
+        y = _check_raw(y_raw, self.in_shape, f"InverseTable {self.name}({self.in_shape})")
+        if y.size and int(y.min()) < 0:
+            raise ValueError(f"InverseTable {self.name}: inputs are magnitudes (>= 0)")
         S, P = self.S, self.P
         cap = 1 << (S + P)
-        high = f >= self.F2                                      # 1. the flat pieces
-        D = np.maximum(f * self.K_raw - self.OFF, 0)             # 2. (>= 0 wherever it is used)
+        high = y >= self.Y2                                      # 1. the ends
+        D = np.maximum(y * self.K_raw - self.OFF, 0)             # 2. (>= 0 wherever it is used)
         s = self.pos_shift
         if s > 0:
             pos = np.minimum(_shift_round_owned(D, min(s, 62)), cap)    # D < 2^61: shifts >= 62 give 0
         else:
             lim = 1 << max(S + P + s, 0)                         # D << -s >= cap iff D >= lim
             pos = np.where(D >= lim, cap, np.minimum(D, lim) << -s)
-        if self.F1 < self.f_shape.max_raw:
-            # f <= F1 already has D = 0, so pos = 0: f K_raw <= F1x K_raw < OFF + 1/2 (F1 <= F1x)
+        if self.Y1 < self.in_shape.max_raw:
+            # y <= Y1 already has D = 0, so pos = 0: y K_raw <= Y1x K_raw < OFF + 1/2 (Y1 <= Y1x)
             pos = np.where(high, cap, pos)
         else:
-            pos = np.where(f <= self.F1, 0, np.where(high, cap, pos))
+            pos = np.where(y <= self.Y1, 0, np.where(high, cap, pos))
         idx = np.minimum(pos >> P, (1 << S) - 1)                 # 3. (pos <= cap: the end point gives
         frac = pos - (idx << P)                                  #     idx = 2^S - 1, frac = 2^P)
-        c2 = self._interp(self.tab_c2, self._slope_c2, self.clip_c2, idx, frac, sat)      # 4.
-        inv = self._interp(self.tab_inv, self._slope_inv, self.clip_inv, idx, frac, sat)
-        c12 = self.c2_shape.saturate(c2 + self.c1_raw, sat, self.name)   # 5.
-        return c2, c12, inv
+        return tuple(self._interp(tab, slope, clip, idx, frac, sat)             # 4.
+                     for tab, slope, clip in zip(self.tabs, self._slopes, self.clips))
 
     def _interp(self, tab, slope, clipped, idx, frac, sat):
         """tab[idx] + shift_round(frac (tab[idx + 1] - tab[idx]), P), with slope[idx] = tab[idx + 1] - tab[idx]."""
@@ -451,43 +486,50 @@ class DamperTable:
         return tab[idx] + _shift_round_owned(frac * slope[idx], self.P)
 
     # ---- references and bounds
-    def reference(self, f):
-        """(c2, c1 + c2, 1/(c1 + c2)) at real forces f, float64, exact formulas."""
-        f = np.asarray(f, np.float64)
-        c2 = np.where(f <= self.f1, self.c_max,
-                      np.where(f >= self.f2, self.c_min,
-                               self.c_max * np.exp(-self.B * np.clip(f - self.f1, 0.0, self.f2 - self.f1))))
-        return c2, self.c1 + c2, 1.0 / (self.c1 + c2)
+    def reference(self, y) -> list:
+        """The outputs at real inputs y, clamped into [y1, y2] (as the unit), float64, exact."""
+        y = np.clip(np.asarray(y, np.float64), self.y1, self.y2)
+        return self._outputs(solve_increasing(self.curve.g, y, self.t_lo, self.t_hi))
 
     def position_error_bound(self) -> float:
-        """df: bound on |f_eff - f| (force units) for the point at which the tables are interpolated."""
-        h = (self.f2 - self.f1) / (1 << self.S)
+        """dy: bound on |y_eff - y| (input units) for the point at which the tables are interpolated."""
+        h = (self.y2 - self.y1) / (1 << self.S)
         rounding = self.OFF_error * 2.0 ** -self.pos_shift + (0.5 if self.pos_shift > 0 else 0.0)
-        return (self.f2 - self.f1) * self.K_rel_error + h * 2.0 ** -self.P * rounding
+        return (self.y2 - self.y1) * self.K_rel_error + h * 2.0 ** -self.P * rounding
+
+    def derivatives(self, t):
+        """(o', o'') of every output with respect to y, at t = g^-1(y)."""
+        cv = self.curve
+        g1, g2 = cv.dg(t), cv.d2g(t)
+        out = [(1.0 / g1, -g2 / g1 ** 3)]
+        for _, dc, d2c in cv.companions:
+            c1, c2 = dc(t), d2c(t)
+            out.append((c1 / g1, (c2 * g1 - c1 * g2) / g1 ** 3))
+        return out
 
     def error_bounds(self) -> dict:
-        """Bounds on |output - reference| in real units for non-saturated elements, and their parts."""
-        c1, cmin, cmax, B = self.c1, self.c_min, self.c_max, self.B
-        h = (self.f2 - self.f1) / (1 << self.S)
-        df = self.position_error_bound()
-        r3 = math.sqrt(3.0)
-        cand2 = [u for u in (cmin, cmax, c1 * (2 - r3), c1 * (2 + r3)) if cmin <= u <= cmax]
-        d2_inv = B * B * max(abs(u * (u - c1) / (c1 + u) ** 3) for u in cand2)
-        cand1 = [u for u in (cmin, cmax, c1) if cmin <= u <= cmax]
-        d1_inv = B * max(u / (c1 + u) ** 2 for u in cand1)
-        interp_c2 = h * h / 8 * B * B * cmax
-        interp_inv = h * h / 8 * d2_inv
-        c2 = interp_c2 + B * cmax * df + self.c2_shape.lsb
-        inv = interp_inv + d1_inv * df + self.inv_shape.lsb
-        c12 = c2 + abs(self.c1_raw * self.c2_shape.lsb - c1)
-        return {"c2": c2, "c12": c12, "inv": inv, "position": df,
-                "interp_c2": interp_c2, "interp_inv": interp_inv,
-                "lipschitz_c2": B * cmax, "lipschitz_inv": d1_inv}
+        """Bounds on |output - reference| per output (by index), in real units, and their parts."""
+        if self._bounds is None:
+            n = self.SAMPLES_PER_SEGMENT
+            tb = self.t_breakpoints
+            frac = np.linspace(0.0, 1.0, n)
+            t = (tb[:-1, None] + (tb[1:] - tb[:-1])[:, None] * frac[None, :])       # (2^S, n)
+            h = (self.y2 - self.y1) / (1 << self.S)
+            dy = self.position_error_bound()
+            bounds = []
+            for (d1, d2), shape in zip(self.derivatives(t), self.out_shapes):
+                lip = float(np.max(np.abs(d1))) * self.SAMPLING_MARGIN
+                interp = h * h / 8 * float(np.max(np.abs(d2))) * self.SAMPLING_MARGIN
+                bounds.append({"total": interp + lip * dy + shape.lsb, "interp": interp,
+                               "lipschitz": lip, "position": dy})
+            self._bounds = bounds
+        return self._bounds
 
     def to_dict(self) -> dict:
-        return {"unit": "damper", "name": self.name, "f": str(self.f_shape), "c2": str(self.c2_shape),
-                "inv": str(self.inv_shape), "segments_log2": self.S, "frac_bits": self.P,
-                "scale_bits": self.scale_bits, "K_raw": self.K_raw, "K_frac_bits": self.kf, "OFF": self.OFF,
-                "F1": self.F1, "F2": self.F2, "c1_raw": self.c1_raw,
-                "clipped_entries": int(self.clip_c2.sum() + self.clip_inv.sum()),
-                "error_bounds": self.error_bounds()}
+        return {"unit": "inverse_table", "name": self.name, "in": str(self.in_shape),
+                "out": [str(s) for s in self.out_shapes], "outputs": list(self.curve.outputs),
+                "segments_log2": self.S, "frac_bits": self.P, "scale_bits": self.scale_bits,
+                "K_raw": self.K_raw, "K_frac_bits": self.kf, "OFF": self.OFF, "Y1": self.Y1, "Y2": self.Y2,
+                "y1": self.y1, "y2": self.y2,
+                "clipped_entries": int(sum(int(c.sum()) for c in self.clips)),
+                "error_bounds": [b["total"] for b in self.error_bounds()]}

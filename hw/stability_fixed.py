@@ -98,7 +98,7 @@ class _FloatDatapath:
 
     def step(self, st) -> None:
         new = step(self.ar, st, self.params)
-        st.X, st.U, st.A, st.FP, st.step = new.X, new.U, new.A, new.FP, new.step
+        st.X, st.U, st.A, st.step = new.X, new.U, new.A, new.step
 
     def frame(self, st):
         x = np.stack([self.units.to_length(c) for c in st.X], 1)

@@ -73,8 +73,10 @@ def _simulate(sys_, backend: str, steps, every, progress=True, preset="wide", la
                                                lanes=lanes, node_lanes=node_lanes)
         else:
             run, raws, bt = simulate_fixed(sys_, preset, steps=steps, every=every, progress=progress)
+        warn_stagnation(bt)
         names = sorted(bt.sat)
         extra = dict(raws, preset=np.str_(preset), formats=np.str_(json.dumps(bt.formats.to_dict())),
+                     stagnation=np.str_(json.dumps(bt.formats.stagnation())),
                      saturation_names=np.array(names, dtype=str),
                      saturation_counts=np.array([bt.sat[n] for n in names], np.int64),
                      constant_saturations=np.str_(json.dumps(dict(bt.const_sat))),
@@ -132,7 +134,15 @@ def _hardware_model(args):
         sys_ = emit.full_featured(sys_)
     print(f"{sys_.name}: range analysis and formats (preset {args.preset})", flush=True)
     with np.errstate(over="ignore", invalid="ignore"):
-        return BitTrue(sys_, args.preset)
+        bt = BitTrue(sys_, args.preset)
+    warn_stagnation(bt)
+    return bt
+
+
+def warn_stagnation(bt) -> None:
+    """A warning line on stderr for every state that stagnates under the bit-true model's formats."""
+    for msg in bt.stagnation_messages():
+        print(f"warning: {msg}", file=sys.stderr, flush=True)
 
 
 def cmd_synth(args) -> int:
@@ -243,6 +253,7 @@ def cmd_run(args) -> int:
     with np.errstate(over="ignore", invalid="ignore"):
         bt = BitTrue(sys_, args.preset)
         frun, raws, _ = simulate_fixed(sys_, args.preset, bittrue=BitTrue(sys_, args.preset, formats=bt.formats))
+    warn_stagnation(bt)
     size = float(np.ptp(sys_.x0, axis=0).max())
     err = float(np.abs(frun.x - run.x).max() / size)
     print(f"      max position error against golden: {err:.2e} of the object size, "
@@ -257,7 +268,7 @@ def cmd_run(args) -> int:
     st = bt.initial_state()
     every = max(1, steps // 4)
     at = frame_steps(steps, every)
-    res = run_job("icarus", core_dir, drv, drv.load_words(st.X, st.U, st.A, st.FP, 0),
+    res = run_job("icarus", core_dir, drv, drv.load_words(st.X, st.U, st.A, 0),
                   [int(k) for k in np.diff(at)])
     ref = BitTrue(sys_, args.preset, formats=bt.formats)
     st = ref.initial_state()

@@ -81,7 +81,9 @@ def build(sys: System, out_dir, presets=("narrow", "medium", "wide"), max_ref_st
                                            "max_relative": float(rel.max()),
                                            "sensitivity_floor_relative": float(floor.max()),
                                            "saturations": dict(bt.sat), "constant_saturations": dict(bt.const_sat),
-                                           "wall_s": wall}
+                                           "stagnation": bt.formats.stagnation(), "wall_s": wall}
+        for msg in bt.stagnation_messages():
+            log(f"warning: {msg}")
         summary["run_time_per_simulated_second"][f"fixed-{preset}"] = wall / T
         cycles = schedule(CoreConfig.of(bt))["cycles_per_step"]
         summary["fpga"]["cycles_per_step"][preset] = cycles

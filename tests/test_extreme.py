@@ -370,15 +370,12 @@ def test_short_element_pulse_and_release_stays_finite(tmp_path, pull):
     assert np.abs(run.v[-1]).max() < 1e-3                 # at rest again after the release
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "golden/elements.py clamp of a (MODEL.md 2 resolution): after the release the short element's Voigt part "
-    "overshoots below its natural length L = 5 um, a hits a_min = 0, and with adot = 0 the tension becomes "
-    "T = k1 s + c1 a ldot = -k1 L: the c2 damper drops out of T, so the element offers no resistance and its "
-    "damper length collapses at the node speed (2 mm in 30 ms) instead of moving at T / c2. Permanent set of the "
-    "short element: -2.5e-6 m instead of (integral F dt) / c2 = 2e-3 m (the long ones: 2.000e-3 m)"))
 def test_short_element_keeps_its_permanent_set(tmp_path):
     """MODEL.md 6: every element of a series chain takes the permanent set (integral of F dt) / c2 (each carries the
-    whole force while the pull acts and none once the chain is at rest), however short it is."""
+    whole force while the pull acts and none once the chain is at rest), however short it is. After the release
+    the short element's Voigt part overshoots below its natural length and a sits on a_min = 0: v2's stop keeps
+    the damper in series (T = Psi((1 - a) ldot)), so its length holds (v1 dropped the damper out of T there and
+    the permanent set collapsed to -2.5e-6 m)."""
     s = load("short-element-chain")
     run = simulate(s)
     d0 = s.x0[s.edges[:, 1], 0] - s.x0[s.edges[:, 0], 0]
