@@ -351,9 +351,9 @@ def test_float_datapath_run_follows_the_golden_run():
 
 def test_bittrue_trial_without_formats_is_unstable():
     sys_ = compile_scene(load_scene("press-2d-rheological"))
-    coarse = dataclasses.replace(sys_, formats={"force": "SQ(17, 0)"})     # damper table below one LSB
+    coarse = dataclasses.replace(sys_, formats={"drive": "SQ(17, 0)"})     # the Phi table below one LSB
     ok, why, n = trial_fixed(coarse, predict(sys_)["dt_pred"], steps=50)
-    assert not ok and n == 0 and "formats cannot be derived" in why and "DamperTable" in why
+    assert not ok and n == 0 and "formats cannot be derived" in why and "InverseTable" in why
 
 
 # Runtime (this 2-core machine, load 2-5): creep-1d 1-4 s (its whole duration, ~250 steps a trial);
