@@ -108,7 +108,7 @@ class PipeArith:
     """Builds one pipeline lane in module `m`.
 
     `fmt`: quantity -> Shape (hw/formats.py FormatSet); `units`: the bit-true function unit models by
-    name ("inv_l", ..., "damper"); `valid`: the stage-0 valid bit; `param_source(q, array)` returns the
+    name ("inv_l", ..., "phi", "psi"); `valid`: the stage-0 valid bit; `param_source(q, array)` returns the
     Amaranth value (valid at stage `param_stage`) of a per-item parameter, or of a per-item flag.
     """
 
@@ -307,17 +307,30 @@ class PipeArith:
         self.sat_sources.append(SatSource(q, unit.o.payload.saturated, out, a.gate))
         return PV(unit.o.payload.value, q, out, a.gate)
 
-    def damper(self, f, table):
-        from .rtl_funcunits import DamperUnit
-        s = self._s(f)
-        unit = DamperUnit(self.units["damper"])
-        self.m.submodules[self._name("damper")] = unit
-        self.m.d.comb += [unit.i.payload.eq(self.at(f, s)), unit.i.valid.eq(self.valid_at(s))]
+    def inverse(self, mag, curve):
+        """(below, above, [outputs]) of the inverse table unit of `curve` (hw/rtl_funcunits.py
+        InverseTableUnit, model self.units[curve.name]) at the magnitude `mag`, as hw/arith.py
+        FixedArith.inverse: below = mag <= Y1, above = mag >= Y2, the outputs in the quantities
+        curve.outputs; all valid at the unit's latency after mag, in mag's gate. The unit's saturations
+        count under the model's name (curve.name, as the bit-true model counts them)."""
+        from .rtl_funcunits import InverseTableUnit
+        model = self.units[curve.name]
+        if self.shape(mag.q) != model.in_shape:
+            raise ValueError(f"inverse table '{curve.name}': operand '{mag.q}' is {self.shape(mag.q)}, the "
+                             f"unit takes {model.in_shape}")
+        if len(curve.outputs) != len(model.out_shapes):
+            raise ValueError(f"inverse table '{curve.name}': {len(curve.outputs)} outputs named, the unit "
+                             f"has {len(model.out_shapes)}")
+        s = self._s(mag)
+        unit = InverseTableUnit(model)
+        self.m.submodules[self._name("inverse_" + curve.name)] = unit
+        self.m.d.comb += [unit.i.payload.eq(self.at(mag, s)), unit.i.valid.eq(self.valid_at(s))]
         out = s + unit.latency
         self.valid_at(out)
-        self.sat_sources.append(SatSource("damper", unit.o.payload.saturations, out, f.gate))
         o = unit.o.payload
-        return PV(o.c2, "c2", out, f.gate), PV(o.c12, "c12", out, f.gate), PV(o.inv, "ic12", out, f.gate)
+        self.sat_sources.append(SatSource(model.name, o.saturations, out, mag.gate))
+        outs = [PV(getattr(o, f), q, out, mag.gate) for f, q in zip(unit.output_fields, curve.outputs)]
+        return PBool(o.below, out, mag.gate), PBool(o.above, out, mag.gate), outs
 
     # ---- saturation accounting
     def saturation_events(self) -> list[tuple[str, Value]]:

@@ -1,8 +1,10 @@
-"""Gateware for the bit-true function units of hw/funcunits.py: reciprocal square root and damper table.
+"""Gateware for the bit-true function units of hw/funcunits.py: reciprocal square root and inverse table.
 
 Both units are Amaranth components built from an already-constructed NumPy model object, which is
 their specification: every constant, ROM word, shift and rounding comes from the model, and for every
-input the gateware's outputs (and saturation flags) equal what the model computes, bit for bit.
+input the gateware's outputs (and saturation flags or counts) equal what the model computes, bit for bit.
+`RsqrtUnit` implements `hw.funcunits.Rsqrt`; `InverseTableUnit` implements `hw.funcunits.InverseTable`
+(the damper's Phi and Psi curves of MODEL.md section 2 v2, or any other odd curve's inverse).
 
 Both units are fully pipelined: they accept one input per clock cycle (initiation interval 1), never
 stall (both streams are `always_ready`), and deliver the result of an input accepted in cycle c in cycle
@@ -22,10 +24,10 @@ from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
 from .fixed import Shape
-from .funcunits import DamperTable, Rsqrt
+from .funcunits import InverseTable, Rsqrt
 from .rtl_fixed import pipelined_product
 
-__all__ = ["RsqrtUnit", "DamperUnit", "PRODUCT_LATENCY"]
+__all__ = ["RsqrtUnit", "InverseTableUnit", "PRODUCT_LATENCY"]
 
 # cycles of every product in the units: a product wider than one 18x18 multiplier takes 2 (registered
 # partial products, then their sum: hw/rtl_fixed.py `pipelined_product`); narrower ones are delayed to 2
@@ -255,60 +257,68 @@ class RsqrtUnit(wiring.Component):
         return m
 
 
-class DamperUnit(wiring.Component):
-    """Damper tables c2(f), c1 + c2(f), 1/(c1 + c2(f)), bit-true to a `hw.funcunits.DamperTable` model.
+class InverseTableUnit(wiring.Component):
+    """An inverse table (the inverse of an odd curve and its companions), bit-true to a
+    `hw.funcunits.InverseTable` model.
 
     Parameters
     ----------
-    model : :class:`hw.funcunits.DamperTable`
-        The NumPy model (the specification); thresholds `F1`, `F2`, scale `K_raw`, offset `OFF`,
-        `pos_shift`, `S`, `P`, the tables `tab_c2`, `tab_inv` with their clip flags and `c1_raw`.
+    model : :class:`hw.funcunits.InverseTable`
+        The NumPy model (the specification): thresholds `Y1`, `Y2`, scale `K_raw`, offset `OFF`,
+        `pos_shift`, `S`, `P`, the tables `tabs` with their clip flags `clips`, one per output format in
+        `out_shapes`.
 
     Attributes
     ----------
-    i : ``In(stream.Signature(raw f_shape, always_ready=True))``
-        Raw force f.
-    o : ``Out(stream.Signature(StructLayout({"c2", "c12", "inv", "saturations": unsigned(2)}),
-        always_ready=True))``
-        The model's three outputs and the number of saturations it counts for this element (c2 and inv
-        interpolations that use a clipped table entry, c12 saturating).
+    i : ``In(stream.Signature(raw in_shape, always_ready=True))``
+        Raw magnitude y (>= 0; the model rejects negative inputs, so no output is specified for them).
+    o : ``Out(stream.Signature(StructLayout({"out0": ..., "out1": ..., "below": 1, "above": 1,
+        "saturations": unsigned(n)}), always_ready=True))``
+        ``out<k>`` is the model's output k (raw, in ``model.out_shapes[k]``; the quantity
+        ``model.curve.outputs[k]``: out0 the inverse, out1... the companions in order; `output_fields`
+        lists the field names). ``below`` is y <= Y1 and ``above`` is y >= Y2 (the model's comparisons,
+        as `hw.arith.FixedArith.inverse` reports them: the linear pieces the datapath applies instead of
+        the table). ``saturations`` is the number of saturations the model counts for this item (one per
+        output whose interpolation uses a clipped table entry), `n` = bits of the number of outputs.
     latency : int
-        9 cycles from an accepted input to its output (5 + 2 products of PRODUCT_LATENCY = 2 cycles).
+        8 cycles from an accepted input to its output (4 + 2 products of PRODUCT_LATENCY = 2 cycles).
 
-    Algorithm (the model's steps 1-5; every stage ends in a register; products are exact,
+    Algorithm (the model's steps 1-4; every stage ends in a register; products are exact,
     hw/rtl_fixed.py `pipelined_product`: operands wider than one 18x18 multiplier are split into limbs
     whose partial products are registered in the first cycle and summed in the second, a product that fits
     one multiplier is registered in the first cycle and delayed in the second):
 
-    - cycles 1 and 2: product f * K_raw; comparisons f <= F1, f >= F2 (in cycle 1, then delayed);
-    - cycle 3: position pos in UQ(S, P): for pos_shift s > 0, q = f K_raw - OFF + 2^(s-1) in one
+    - cycles 1 and 2: product y * K_raw; comparisons y <= Y1 (below), y >= Y2 (above) in cycle 1, then
+      delayed (to cycle 3 for the position, to the output for the `below` and `above` fields);
+    - cycle 3: position pos in UQ(S, P): for pos_shift s > 0, q = y K_raw - OFF + 2^(s-1) in one
       subtraction and pos = clamp(q >> s, 0, 2^(S+P)); for s <= 0, pos = min(D << -s, 2^(S+P)) with
-      D = max(f K_raw - OFF, 0); then 0 for f <= F1, 2^(S+P) for f >= F2;
+      D = max(y K_raw - OFF, 0); then 0 for y <= Y1, 2^(S+P) for y >= Y2;
     - cycle 4: idx = pos >> P, frac = pos mod 2^P (idx = 2^S - 1, frac = 2^P at the end point 2^(S+P));
-      two ROMs (c2, inv) of 2^S words, read synchronously at idx. Word j holds tab[j], the difference
+      one ROM per output of 2^S words, read synchronously at idx. Word j holds tab[j], the difference
       tab[j+1] - tab[j] and the clip flags of entries j and j+1;
     - cycle 5: the ROM words registered (a block RAM's clock-to-output delay leaves no room for a
       multiplier in the same cycle);
     - cycles 6 and 7: products frac * (tab[idx+1] - tab[idx]); saturation flags
       clip[idx] | (clip[idx+1] & frac != 0) (in cycle 6, then delayed);
-    - cycle 8: value = tab[idx] + ((product + 2^(P-1)) >> P) for both tables;
-    - cycle 9: c12 = c2 + c1_raw, saturated into c2_shape (counted).
+    - cycle 8: out = tab[idx] + ((product + 2^(P-1)) >> P) for every table (it lies between two entries:
+      it always fits), and the sum of the saturation flags; the output registers.
 
     Throughput: one input per cycle, no stalls.
     """
 
-    def __init__(self, model: DamperTable):
-        if not isinstance(model, DamperTable):
-            raise TypeError(f"DamperUnit needs a hw.funcunits.DamperTable model, got "
+    def __init__(self, model: InverseTable):
+        if not isinstance(model, InverseTable):
+            raise TypeError(f"InverseTableUnit needs a hw.funcunits.InverseTable model, got "
                             f"{type(model).__name__} ({model!r})")
         self.model = model
-        self.latency = 5 + 2 * PRODUCT_LATENCY
-        c2s, invs = _raw_shape(model.c2_shape), _raw_shape(model.inv_shape)
+        self.latency = 4 + 2 * PRODUCT_LATENCY
+        n = len(model.out_shapes)
+        self.output_fields = tuple(f"out{k}" for k in range(n))
+        fields = {f: _raw_shape(s) for f, s in zip(self.output_fields, model.out_shapes)}
+        fields.update({"below": 1, "above": 1, "saturations": unsigned(_bits(n))})
         super().__init__({
-            "i": In(stream.Signature(_raw_shape(model.f_shape), always_ready=True)),
-            "o": Out(stream.Signature(data.StructLayout({"c2": c2s, "c12": c2s, "inv": invs,
-                                                         "saturations": unsigned(2)}),
-                                      always_ready=True)),
+            "i": In(stream.Signature(_raw_shape(model.in_shape), always_ready=True)),
+            "o": Out(stream.Signature(data.StructLayout(fields), always_ready=True)),
         })
 
     @staticmethod
@@ -326,26 +336,28 @@ class DamperUnit(wiring.Component):
         m = Module()
         p = _Pipe(m)
         md = self.model
-        fs, c2_shape = md.f_shape, md.c2_shape
+        ys = md.in_shape
         S, P = md.S, md.P
         cap = 1 << (S + P)
+        L = self.latency
 
-        _delay_valid(m, self.i.valid, self.o.valid, self.latency)
+        _delay_valid(m, self.i.valid, self.o.valid, L)
 
-        # ---- cycles 1 and 2: product and the flat pieces
-        f = self.i.payload
-        prod = p.product(f, md.K_raw, PRODUCT_LATENCY, name="fk")
-        # the product as a signed value (zero-extended when f is unsigned), for the signed subtraction
+        # ---- cycles 1 and 2: product and the pieces
+        y = self.i.payload
+        prod = p.product(y, md.K_raw, PRODUCT_LATENCY, name="yk")
+        # the product as a signed value (zero-extended when y is unsigned), for the signed subtraction
         prod_s = prod if prod.shape().signed else Cat(prod, Const(0, 1)).as_signed()
-        low = p.delay(p.reg(f <= md.F1, name="low"), PRODUCT_LATENCY - 1)
-        high = p.delay(p.reg(f >= md.F2 if md.F2 <= fs.max_raw else Const(0), unsigned(1), name="high"),
-                       PRODUCT_LATENCY - 1)
+        below1 = p.reg(y <= md.Y1, unsigned(1), name="below")
+        above1 = p.reg(y >= md.Y2 if md.Y2 <= ys.max_raw else Const(0), unsigned(1), name="above")
+        low = p.delay(below1, PRODUCT_LATENCY - 1)
+        high = p.delay(above1, PRODUCT_LATENCY - 1)
 
         # ---- cycle 3: position
         s = md.pos_shift
         pos_i = Signal(range(cap + 1))
         if s > 0:
-            d_max = max(fs.max_raw * md.K_raw - md.OFF, 0)
+            d_max = max(ys.max_raw * md.K_raw - md.OFF, 0)
             s_eff = min(s, d_max.bit_length() + 1)      # shift_round(D, s) = 0 for all D < 2^(s_eff-1)
             q = Signal(signed(max(len(prod_s), _bits(abs(md.OFF))) + 3))
             m.d.comb += q.eq(prod_s - (md.OFF - (1 << (s_eff - 1))))
@@ -373,37 +385,31 @@ class DamperUnit(wiring.Component):
         idx = Mux(end, (1 << S) - 1, pos[P:S + P])
         frac = Mux(end, 1 << P, pos[:P])
         frac5 = p.delay(frac, 2, name="frac")
-        rows = {}
-        for key, tab, clip, shape in (("c2", md.tab_c2, md.clip_c2, md.c2_shape),
-                                      ("inv", md.tab_inv, md.clip_inv, md.inv_shape)):
+        rows = []
+        for k, (tab, clip, shape) in enumerate(zip(md.tabs, md.clips, md.out_shapes)):
             layout, init = self._rom_layout(tab, clip, shape)
             rom = Memory(shape=layout, depth=len(init), init=init)
-            m.submodules[f"rom_{key}"] = rom
+            m.submodules[f"rom_{k}"] = rom
             rp = rom.read_port(domain="sync")
             m.d.comb += rp.addr.eq(idx)
             # ---- cycle 5: the ROM word in a register (no arithmetic after a block RAM's output)
-            rows[key] = data.View(layout, p.reg(rp.data.as_value(), name=f"{key}_row"))
+            rows.append(data.View(layout, p.reg(rp.data.as_value(), name=f"row_{k}")))
 
-        # ---- cycles 6 to 8: interpolation
-        vals, sats = {}, {}
-        for key, shape in (("c2", md.c2_shape), ("inv", md.inv_shape)):
-            row = rows[key]
-            pr = p.product(frac5, row.delta, PRODUCT_LATENCY, name=f"{key}_prod")
-            lo = p.delay(row.lo, PRODUCT_LATENCY, name=f"{key}_lo")
-            sat = p.delay(p.reg(row.clip_lo | (row.clip_hi & (frac5 != 0)), name=f"{key}_sat"),
-                          PRODUCT_LATENCY - 1)
-            vals[key] = p.reg(lo + (pr + (1 << (P - 1))).shift_right(P), _raw_shape(shape), name=key)
-            sats[key] = p.reg(sat)
-
-        # ---- cycle 9: c12 = c1 + c2, saturated
-        c12 = vals["c2"] + md.c1_raw
-        c12_ovf = (c12 > c2_shape.max_raw) | (c12 < c2_shape.min_raw)
-        c12_sat = Mux(c12 > c2_shape.max_raw, c2_shape.max_raw,
-                      Mux(c12 < c2_shape.min_raw, c2_shape.min_raw, c12))
-        o_c12 = p.reg(c12_sat, _raw_shape(c2_shape), name="out_c12")
-        o_c2 = p.reg(vals["c2"], name="out_c2")
-        o_inv = p.reg(vals["inv"], name="out_inv")
-        o_sat = p.reg(sats["c2"] + sats["inv"] + c12_ovf, unsigned(2), name="out_sat")
-        m.d.comb += [self.o.payload.c2.eq(o_c2), self.o.payload.c12.eq(o_c12),
-                     self.o.payload.inv.eq(o_inv), self.o.payload.saturations.eq(o_sat)]
+        # ---- cycles 6 to 8: interpolation, saturation count, the output registers
+        sats = []
+        for k, (row, shape, field) in enumerate(zip(rows, md.out_shapes, self.output_fields)):
+            pr = p.product(frac5, row.delta, PRODUCT_LATENCY, name=f"prod_{k}")
+            lo = p.delay(row.lo, PRODUCT_LATENCY, name=f"lo_{k}")
+            sats.append(p.delay(p.reg(row.clip_lo | (row.clip_hi & (frac5 != 0)), name=f"sat_{k}"),
+                                PRODUCT_LATENCY - 1))
+            val = p.reg(lo + (pr + (1 << (P - 1))).shift_right(P), _raw_shape(shape), name=f"out_{k}")
+            m.d.comb += getattr(self.o.payload, field).eq(val)
+        nsat = sats[0]
+        for f_ in sats[1:]:
+            nsat = nsat + f_
+        o_sat = p.reg(nsat, self.o.payload.saturations.shape(), name="out_sat")
+        o_below = p.delay(below1, L - 1, name="out_below")
+        o_above = p.delay(above1, L - 1, name="out_above")
+        m.d.comb += [self.o.payload.saturations.eq(o_sat), self.o.payload.below.eq(o_below),
+                     self.o.payload.above.eq(o_above)]
         return m

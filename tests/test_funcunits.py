@@ -1,19 +1,27 @@
 """Function units (hw/funcunits.py) against float64 references: exhaustive over every input of 16- to
-20-bit formats, dense random for 32-bit formats, and edge cases.
+20-bit formats, dense random (3 million inputs) for 24- to 32-bit formats, and edge cases.
 
-Every check compares the unit's output with 1/sqrt(v) or the damper's exact formulas in float64 (never
-with the unit itself) under the bounds the units state. `pytest -s` prints a table per configuration:
-max relative error, max |error| in output LSBs, bias (mean error in LSBs) and the stated bounds.
+Every check compares the unit's output with 1/sqrt(v), or with the damper's curves written out here
+independently (Phi = G^-1 with its companion w' = H(T), Psi = H^-1; MODEL.md section 2 v2; inverted by
+the test's own Newton solve), never with the unit itself, under the bounds the units state. The golden
+element's exact solves (golden.elements.ElementParams.phi / psi) are checked against the same curves
+with hypothesis (seeded) over random materials. `pytest -s` prints a table per configuration: max
+|error| (relative for rsqrt) and in output LSBs, bias (mean error in LSBs) and the stated bounds.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from golden.elements import DamperLaw
+from hw.datapath import phi_curve, psi_curve
 from hw.fixed import SQ, UQ, Saturations
-from hw.funcunits import DamperTable, Rsqrt, _bit_length, _mul_shift_round
+from hw.funcunits import InverseTable, OddCurve, Rsqrt, _bit_length, _mul_shift_round
 
 # float64 evaluation of measured errors and bounds: a relative slack far below every bound's size
 SLACK = 1e-9
@@ -278,192 +286,408 @@ def test_rsqrt_rejects_bad_shapes():
         Rsqrt(UQ(4, 16), SQ(2, 4), seed_bits=12, guard_bits=2)
 
 
-# ================================================================================================ damper
+# ========================================================================================= inverse tables
+#
+# The damper's curves (MODEL.md section 2 v2) are written out here once more, independently of golden/ and
+# hw/: c2 as the power c_max (c_min / c_max)^x (not A exp(-B f)), the inverse by Newton's method from the
+# right end of the bracket (a convex g: the iterates descend monotonically), not by the model's bisection.
+# The units under test are built from the project's curves (hw/datapath.py phi_curve / psi_curve).
 
-def _damper_a_priori(unit: DamperTable) -> dict:
-    """The class docstring's bounds from the parameters and formats alone (not the unit's constants):
-    |K_q/K - 1| <= 2^-scale_bits, the offset's rounding <= 2^-scale_bits input LSBs, the position's
-    rounding <= 2^-(P+1) segments."""
-    h = (unit.f2 - unit.f1) / (1 << unit.S)
+@dataclass(frozen=True)
+class Mat:
+    """A damper beside its c1 (MODEL.md 2): G(T) = T + c1 H(T), H(T) = T / c2(|T|), the test's own code."""
+    c1: float
+    c_min: float
+    c_max: float
+    f1: float
+    f2: float
+
+    def law(self) -> DamperLaw:
+        return DamperLaw(self.c1, self.c_min, self.c_max, self.f1, self.f2)
+
+    def curve(self, kind: str) -> OddCurve:
+        return phi_curve(self.law()) if kind == "phi" else psi_curve(self.law())
+
+    @property
+    def B(self) -> float:
+        return math.log(self.c_max / self.c_min) / (self.f2 - self.f1)
+
+    def c2(self, t):
+        x = np.clip((np.abs(t) - self.f1) / (self.f2 - self.f1), 0.0, 1.0)
+        return self.c_max * (self.c_min / self.c_max) ** x
+
+    def H(self, t):
+        return t / self.c2(t)
+
+    def G(self, t):
+        return t + self.c1 * self.H(t)
+
+    # on [f1, f2]: 1 / c2 = e^(B (t - f1)) / c_max, so H' = (1 + B t) / c2 and H'' = B (2 + B t) / c2
+    def dH(self, t):
+        return (1.0 + self.B * t) / self.c2(t)
+
+    def d2H(self, t):
+        return self.B * (2.0 + self.B * t) / self.c2(t)
+
+    def g(self, kind):
+        return self.G if kind == "phi" else self.H
+
+    def dg(self, kind):
+        return (lambda t: 1.0 + self.c1 * self.dH(t)) if kind == "phi" else self.dH
+
+    def outputs(self, kind, t):
+        """The table's outputs at t: (T, w' = H(T)) for Phi, (T,) for Psi."""
+        return [t, self.H(t)] if kind == "phi" else [t]
+
+    def derivatives(self, kind, t):
+        """(o', o'') of every output with respect to the input y, at t = g^-1(y) in [f1, f2]."""
+        h1, h2 = self.dH(t), self.d2H(t)
+        if kind == "psi":
+            return [(1.0 / h1, -h2 / h1 ** 3)]
+        g1 = 1.0 + self.c1 * h1                  # G' ; G'' = c1 H'', so (H'' G' - H' G'') = H''
+        return [(1.0 / g1, -self.c1 * h2 / g1 ** 3), (h1 / g1, h2 / g1 ** 3)]
+
+    def solve(self, kind, y):
+        """t in [f1, f2] with g(t) = y (y in [g(f1), g(f2)]): Newton from t = f2, to float64 precision."""
+        g, dg = self.g(kind), self.dg(kind)
+        y = np.asarray(y, np.float64)
+        t = np.full(y.shape, float(self.f2))
+        act = np.arange(y.size)
+        for _ in range(200):
+            step = (g(t[act]) - y[act]) / dg(t[act])
+            new = np.clip(t[act] - step, self.f1, self.f2)
+            moved = np.abs(new - t[act]) > 4 * np.spacing(np.maximum(np.abs(new), 1e-300))
+            t[act] = new
+            act = act[moved]
+            if act.size == 0:
+                break
+        assert act.size == 0, "the test's reference solve did not converge"
+        return t
+
+
+RHEO = Mat(0.5, 0.5, 500.0, 0.01, 0.05)          # the rheological preset, hardware-unit-like magnitudes
+SERIES = Mat(0.0, 1.0, 1000.0, 0.0, 0.04)        # c1 = 0: Phi is the identity (only w' is curved); f1 = 0
+INSIDE = Mat(3.0, 1.0, 12.0, 0.5, 3.0)           # c1 inside [c_min, c_max]
+MILD = Mat(2.0, 0.5, 5.0, 0.01, 0.05)            # c_max / c_min = 10
+STEEP = Mat(1.0, 2.0, 20.0, 0.0, 100.0)          # large inputs: the position is a left shift
+
+
+def _fmt_round(value, shape):
+    """The raw value nearest to a real value (ties up), clamped into the format (written out here)."""
+    raw = np.floor(np.asarray(value, np.float64) * 2.0 ** shape.f + 0.5)
+    return np.clip(raw, shape.min_raw, shape.max_raw).astype(np.int64)
+
+
+def _inverse_a_priori(unit: InverseTable, mat: Mat, kind: str) -> list:
+    """The class docstring's bound per output from the parameters and formats alone (not the unit's
+    constants): |K_q/K - 1| <= 2^-scale_bits, the offset's rounding <= 2^-scale_bits input LSBs, the
+    position's rounding <= 2^-(P+1) segments; o' and o'' maximised over 200001 points of [f1, f2]."""
+    w = unit.y2 - unit.y1
+    h = w / (1 << unit.S)
     sb = unit.scale_bits
-    df = (unit.f2 - unit.f1) * 2.0 ** -sb + unit.f_shape.lsb * 2.0 ** -sb + h * 2.0 ** -(unit.P + 1)
-    B, c1 = math.log(unit.c_max / unit.c_min) / (unit.f2 - unit.f1), unit.c1
-    u = np.linspace(unit.c_min, unit.c_max, 200001)            # dense: max|g'|, max|g''| of 1/(c1 + c2)
-    d1 = float(np.max(B * u / (c1 + u) ** 2)) * 1.001
-    d2 = float(np.max(np.abs(B * B * u * (u - c1) / (c1 + u) ** 3))) * 1.001
-    c2 = h * h / 8 * B * B * unit.c_max + B * unit.c_max * df + unit.c2_shape.lsb
-    return {"position": df, "c2": c2, "c12": c2 + 0.5 * unit.c2_shape.lsb,
-            "inv": h * h / 8 * d2 + d1 * df + unit.inv_shape.lsb}
+    dy = w * 2.0 ** -sb + unit.in_shape.lsb * 2.0 ** -sb + h * 2.0 ** -(unit.P + 1)
+    t = np.linspace(mat.f1, mat.f2, 200001)
+    out = []
+    for (d1, d2), shape in zip(mat.derivatives(kind, t), unit.out_shapes):
+        interp = h * h / 8 * float(np.max(np.abs(d2)))
+        lip = float(np.max(np.abs(d1)))
+        out.append({"interp": interp, "lipschitz": lip, "position": dy,
+                    "total": 1.05 * (interp + lip * dy) + shape.lsb})
+    return out
 
 
-def _damper_check(unit: DamperTable, label: str, valid_from: float = -1.0):
-    """Exhaustive over every non-negative input; elements with f < valid_from may use clamped entries."""
-    stated, prior = unit.error_bounds(), _damper_a_priori(unit)
-    for q in ("position", "c2", "c12", "inv"):
-        assert stated[q] <= prior[q] * (1 + SLACK), f"{label}: stated {q} bound {stated[q]:.3e} > {prior[q]:.3e}"
-    fs = unit.f_shape
-    f_raw = np.arange(0, fs.max_raw + 1, dtype=np.int64)
+def _inverse_check(unit: InverseTable, mat: Mat, kind: str, y_raw: np.ndarray, label: str) -> list:
+    """Check the unit at the raw magnitudes y_raw against the test's reference; no clipped entries.
+    Returns per output (max |error|, its LSBs, the stated bound, bias in LSBs)."""
+    stated, prior = unit.error_bounds(), _inverse_a_priori(unit, mat, kind)
+    assert len(stated) == len(unit.out_shapes) == len(mat.outputs(kind, 0.0))
+    for k, (st, pr) in enumerate(zip(stated, prior)):
+        # no looser than the a-priori bound, and it covers the true curvature and slope
+        assert st["total"] <= pr["total"] * (1 + SLACK), f"{label} out{k}: stated {st} > a priori {pr}"
+        assert st["position"] <= pr["position"] * (1 + SLACK)
+        assert st["interp"] >= pr["interp"] * (1 - 1e-6) and st["lipschitz"] >= pr["lipschitz"] * (1 - 1e-6)
+    ys = unit.in_shape
+    assert unit.y1 == pytest.approx(float(mat.g(kind)(mat.f1)), rel=1e-14, abs=1e-300)
+    assert unit.y2 == pytest.approx(float(mat.g(kind)(mat.f2)), rel=1e-14)
     sat = Saturations()
-    c2, c12, inv = unit(f_raw, sat)
-    for a in (c2, c12, inv):
-        assert a.dtype == np.int64 and a.shape == f_raw.shape
-    f = fs.to_float(f_raw)
-    rc2, rc12, rinv = unit.reference(f)
-    b = unit.error_bounds()
-    cs, ish = unit.c2_shape, unit.inv_shape
-    # monotone: c2 and c1 + c2 non-increasing, 1/(c1 + c2) non-decreasing in f
-    assert np.all(np.diff(c2) <= 0) and np.all(np.diff(c12) <= 0) and np.all(np.diff(inv) >= 0)
-    # the flat pieces are exact
-    lo, hi = f <= unit.f1, f >= unit.f2
-    c_max_raw = cs.from_float(unit.c_max)
-    c_min_raw = cs.from_float(unit.c_min)
-    assert lo.any()
-    assert np.all(c2[lo] == c_max_raw)
-    assert np.all(c2[hi] == c_min_raw)
-    assert np.all(inv[lo] == ish.from_float(1 / (unit.c1 + unit.c_max)))
-    assert np.all(inv[hi] == ish.from_float(1 / (unit.c1 + unit.c_min)))
-    # errors against the exact formulas, where no clamped table entry can be involved
-    ok = f >= valid_from
-    rows = {}
-    for q, out, ref, shape in (("c2", c2, rc2, cs), ("c12", c12, rc12, cs), ("inv", inv, rinv, ish)):
-        fits = ok & (ref + b[q] <= shape.max_value)         # c12 may saturate where c1 + c2 is too big
-        err = shape.to_float(out[fits]) - ref[fits]
-        worst = float(np.max(np.abs(err))) if fits.any() else 0.0
-        assert worst <= b[q] * (1 + SLACK), f"{label} {q}: max error {worst:.3e} > bound {b[q]:.3e}"
-        mid = fits & (f > unit.f1) & (f < unit.f2)
-        bias = float(np.mean(shape.to_float(out[mid]) - ref[mid]) / shape.lsb) if mid.any() else 0.0
-        assert abs(bias) <= b[q] / shape.lsb
-        rows[q] = (worst, worst / shape.lsb, b[q], b[q] / shape.lsb, bias, int(fits.sum()))
-    # c12 is c1 + c2: exactly c1 (rounded) + c2 where it does not saturate, within 1/2 LSB of c1 + c2
-    unsat = c12 < cs.max_raw
-    assert np.all(c12[unsat] - c2[unsat] == cs.from_float(unit.c1))
-    assert np.all(np.abs(cs.to_float(c12[unsat]) - (unit.c1 + cs.to_float(c2[unsat]))) <= 0.5 * cs.lsb)
-    for q, (worst, wl, bq, bl, bias, n) in rows.items():
-        _row(f"{label:<40}", f"S={unit.S:2d}", f"{q:<4}", f"n={n:7d}", f"max |err| {worst:.3e} = {wl:7.3f} LSB",
-             f"bound {bq:.3e} = {bl:7.3f} LSB", f"bias {bias:+.4f} LSB", f"sat {sat.total}")
-    return sat, (c2, c12, inv), f
+    outs = unit(y_raw, sat)
+    assert len(outs) == len(unit.out_shapes)
+    for o in outs:
+        assert o.dtype == np.int64 and o.shape == y_raw.shape
+    assert sat.total == 0, f"{label}: {sat.total} saturations without clipped table entries"
+    y = y_raw * 2.0 ** -ys.f                      # exact in float64
+    # the pieces: exactly the comparisons with the real knees (raw Y1 = floor(y1 2^fy), Y2 = ceil(y2 2^fy))
+    below, above = y_raw <= unit.Y1, y_raw >= unit.Y2
+    assert np.array_equal(below, y <= unit.y1) and np.array_equal(above, y >= unit.y2)
+    # outside [y1, y2] the unit gives the table's end entries: the outputs at t_lo = f1 and t_hi = f2
+    first = [_fmt_round(v, s) for v, s in zip(mat.outputs(kind, mat.f1), unit.out_shapes)]
+    last = [_fmt_round(v, s) for v, s in zip(mat.outputs(kind, mat.f2), unit.out_shapes)]
+    for k, o in enumerate(outs):
+        assert np.all(o[below] == first[k]), f"{label} out{k}: below y1 not the first entry"
+        assert np.all(o[above] == last[k]), f"{label} out{k}: above y2 not the last entry"
+    # monotone (every output increases with the magnitude)
+    order = np.argsort(y_raw, kind="stable")
+    for k, o in enumerate(outs):
+        assert np.all(np.diff(o[order]) >= 0), f"{label} out{k}: not monotone"
+    # the interpolated piece against the reference
+    mid = ~below & ~above
+    refs = mat.outputs(kind, mat.solve(kind, y[mid])) if mid.any() else []
+    stats = []
+    for k, (o, shape) in enumerate(zip(outs, unit.out_shapes)):
+        bound = stated[k]["total"]
+        if not mid.any():
+            stats.append((0.0, 0.0, bound, 0.0))
+            continue
+        err = o[mid] * shape.lsb - refs[k]
+        worst = float(np.max(np.abs(err)))
+        bias = float(np.mean(err) / shape.lsb)
+        assert worst <= bound * (1 + SLACK), f"{label} out{k}: max error {worst:.3e} > bound {bound:.3e}"
+        assert abs(bias) <= bound / shape.lsb
+        stats.append((worst, worst / shape.lsb, bound, bias))
+        b = stated[k]
+        _row(f"{label:<34}", f"{kind} out{k} ({unit.curve.outputs[k]:<5})", f"S={unit.S:2d}",
+             f"n={int(mid.sum()):8d}", f"max |err| {worst:.3e} = {worst / shape.lsb:8.3f} LSB",
+             f"bound {bound:.3e} = {bound / shape.lsb:8.3f} LSB (interp {b['interp'] / shape.lsb:.3g}, "
+             f"position {b['lipschitz'] * b['position'] / shape.lsb:.3g})", f"bias {bias:+.4f} LSB")
+    # the model's own reference agrees with the test's (a check of the test's solver as well)
+    if mid.any():
+        for r_model, r_test in zip(unit.reference(y[mid]), refs):
+            assert np.allclose(r_model, r_test, rtol=1e-12, atol=0)
+    return stats
 
 
-DAMPER_CASES = {
-    # label: (f, c2, inv, c1, c_min, c_max, f1, f2, S, extra kwargs)
-    "scene-like c_max/c_min=10": (UQ(-3, 21), SQ(5, 13), SQ(2, 16), 2.0, 0.5, 5.0, 0.01, 0.05, 6, {}),
-    "series c1=0 ratio 1000 wide": (SQ(-2, 20), SQ(11, 16), SQ(3, 24), 0.0, 0.5, 500.0, 0.01, 0.05, 10, {}),
-    "ratio 1000 S=8 narrow": (SQ(-2, 20), SQ(11, 7), SQ(3, 15), 0.0, 0.5, 500.0, 0.01, 0.05, 8, {}),
-    "16-bit f, c1 inside [cmin, cmax]": (SQ(4, 12), SQ(6, 12), SQ(0, 18), 3.0, 1.0, 12.0, 0.5, 3.0, 8, {}),
-    "constant c_min=c_max": (SQ(4, 12), SQ(8, 10), SQ(1, 17), 1.5, 3.0, 3.0, 0.0, 1.0, 6, {}),
-    "left-shifted position, f1=0": (UQ(12, 4), SQ(7, 11), SQ(0, 18), 1.0, 2.0, 20.0, 0.0, 100.0, 8,
-                                    dict(frac_bits=24, scale_bits=16)),
-    "f2 beyond the f range": (UQ(2, 16), SQ(4, 14), SQ(1, 17), 0.5, 1.0, 4.0, 1.0, 9.0, 8, {}),
+INVERSE_EXHAUSTIVE = {
+    # label: (material, curve, in_shape, out_shapes, segments_log2, extra kwargs); inputs up to 20 bits
+    "rheological Phi": (RHEO, "phi", UQ(-3, 23), (SQ(-3, 21), SQ(-2, 20)), 6, {}),
+    "rheological Psi": (RHEO, "psi", UQ(-3, 23), (SQ(-3, 21),), 8, {}),
+    "series c1=0 Phi, f1=0": (SERIES, "phi", SQ(-3, 21), (SQ(-3, 21), SQ(-3, 21)), 5, {}),
+    "series c1=0 Psi, f1=0": (SERIES, "psi", UQ(-4, 24), (SQ(-3, 21),), 10, {}),
+    "c1 in [c_min, c_max] Phi 16-bit": (INSIDE, "phi", SQ(5, 11), (SQ(3, 13), SQ(3, 13)), 8, {}),
+    "c1 in [c_min, c_max] Psi 16-bit": (INSIDE, "psi", UQ(2, 14), (SQ(3, 13),), 7, {}),
+    "ratio 10 Phi": (MILD, "phi", UQ(-1, 21), (SQ(-3, 21), SQ(-2, 20)), 4, {}),
+    "ratio 10 Psi": (MILD, "psi", UQ(-3, 23), (SQ(-3, 21),), 9, {}),
+    "left-shifted position Psi": (STEEP, "psi", UQ(10, 6), (SQ(8, 10),), 8, dict(frac_bits=24, scale_bits=16)),
+    "y2 beyond the input range Phi": (Mat(0.5, 1.0, 4.0, 1.0, 9.0), "phi", UQ(3, 15), (SQ(5, 13), SQ(5, 13)),
+                                      8, {}),
 }
 
 
-@pytest.mark.parametrize("label", list(DAMPER_CASES))
-def test_damper_exhaustive(label):
-    fsh, c2s, invs, c1, cmin, cmax, f1, f2, S, kw = DAMPER_CASES[label]
-    unit = DamperTable(fsh, c2s, invs, c1, cmin, cmax, f1, f2, segments_log2=S, **kw)
-    if label == "left-shifted position, f1=0":
+@pytest.mark.parametrize("label", list(INVERSE_EXHAUSTIVE))
+def test_inverse_exhaustive(label):
+    mat, kind, ins, outs, S, kw = INVERSE_EXHAUSTIVE[label]
+    assert ins.width <= 20
+    unit = InverseTable(ins, outs, mat.curve(kind), segments_log2=S, **kw)
+    assert unit.name == kind and not any(c.any() for c in unit.clips)
+    if label.startswith("left-shifted"):
         assert unit.pos_shift < 0
-    sat, _, _ = _damper_check(unit, label)
-    assert sat.total == 0
+    if label.startswith("y2 beyond"):
+        assert unit.Y2 == ins.max_raw + 1
+    if label.startswith("series"):
+        assert unit.Y1 == 0
+    y_raw = np.arange(0, ins.max_raw + 1, dtype=np.int64)
+    _inverse_check(unit, mat, kind, y_raw, label)
 
 
-def test_damper_interpolation_error_dominates_and_shrinks_with_segments():
-    """The bound's interpolation term is h^2/8 max|g''|; the measured error follows it (4x per segment doubling)."""
-    args = (UQ(-3, 21), SQ(11, 16), SQ(3, 24), 0.0, 0.5, 500.0, 0.01, 0.05)
-    f_raw = np.arange(0, UQ(-3, 21).max_raw + 1, dtype=np.int64)
-    f = UQ(-3, 21).to_float(f_raw)
+def _dense_inputs(unit: InverseTable, n: int, seed: int) -> np.ndarray:
+    """n random magnitudes (a quarter over the whole format, the rest over the table's piece), the ends,
+    the thresholds and every breakpoint with their neighbourhoods."""
+    s = unit.in_shape
+    rng = np.random.default_rng(seed)
+    lo, hi = max(unit.Y1 - 64, 0), min(unit.Y2 + 64, s.max_raw)
+    j = np.arange((1 << unit.S) + 1)
+    bp = np.floor((unit.y1 + j * (unit.y2 - unit.y1) / (1 << unit.S)) * 2.0 ** s.f).astype(np.int64)
+    near = (bp[:, None] + np.arange(-3, 4)[None, :]).ravel()
+    ends = [0, 1, 2, s.max_raw - 1, s.max_raw, *range(unit.Y1 - 3, unit.Y1 + 4), *range(unit.Y2 - 3, unit.Y2 + 4)]
+    x = np.concatenate([rng.integers(0, s.max_raw, n // 4, endpoint=True),
+                        rng.integers(lo, hi, n - n // 4, endpoint=True), near, ends]).astype(np.int64)
+    return x[(x >= 0) & (x <= s.max_raw)]
+
+
+INVERSE_DENSE = {
+    # 32- and 24-bit inputs: 3 million random magnitudes each
+    "rheological Phi 32-bit": (RHEO, "phi", UQ(-3, 35), (SQ(-3, 35), SQ(-2, 34)), 10),
+    "rheological Psi 32-bit": (RHEO, "psi", UQ(-3, 35), (SQ(-3, 35),), 10),
+    "c1 in [c_min, c_max] Phi 24-bit": (INSIDE, "phi", SQ(5, 19), (SQ(3, 21), SQ(3, 21)), 8),
+    "series c1=0 Psi 28-bit": (SERIES, "psi", SQ(-3, 31), (SQ(-3, 29),), 6),
+}
+
+
+@pytest.mark.parametrize("label", list(INVERSE_DENSE))
+def test_inverse_dense(label):
+    mat, kind, ins, outs, S = INVERSE_DENSE[label]
+    unit = InverseTable(ins, outs, mat.curve(kind), segments_log2=S)
+    x = _dense_inputs(unit, 3_000_000, seed=S)
+    _inverse_check(unit, mat, kind, x, label + " random")
+
+
+def test_inverse_interpolation_error_shrinks_4x_per_segment_bit():
+    """With wide outputs the bound's interpolation term h^2/8 max|o''| dominates, and the measured error
+    follows it: 4x smaller per extra segment bit, for the inverse and the companion."""
+    ins, outs = UQ(-3, 23), (SQ(-3, 35), SQ(-2, 34))
+    y_raw = np.arange(0, ins.max_raw + 1, dtype=np.int64)
     errs = []
-    for S in (4, 5, 6):
-        unit = DamperTable(*args, segments_log2=S)
-        c2, _, _ = unit(f_raw)
-        err = float(np.max(np.abs(SQ(11, 16).to_float(c2) - unit.reference(f)[0])))
-        b = unit.error_bounds()
-        assert b["interp_c2"] > 0.5 * b["c2"]
-        assert 0.5 * b["interp_c2"] <= err <= b["c2"]
-        errs.append(err)
-    assert errs[0] / errs[1] == pytest.approx(4, rel=0.15) and errs[1] / errs[2] == pytest.approx(4, rel=0.15)
+    for S in (4, 5, 6, 7):
+        unit = InverseTable(ins, outs, RHEO.curve("phi"), segments_log2=S)
+        stats = _inverse_check(unit, RHEO, "phi", y_raw, f"rheological Phi S={S} wide outputs")
+        for k, b in enumerate(unit.error_bounds()):
+            assert b["interp"] > 0.5 * b["total"]
+            assert 0.5 * b["interp"] <= stats[k][0] <= b["total"]
+        errs.append([s[0] for s in stats])
+    errs = np.array(errs)
+    ratios = errs[:-1] / errs[1:]
+    assert np.all(np.abs(ratios - 4) <= 0.6), f"error ratios per segment bit {ratios.tolist()}"
 
 
-def test_damper_c12_saturates_and_counts():
-    """c1 + c2 beyond the c2 format saturates (counted); c2 itself and the inverse do not."""
-    fsh, cs = UQ(2, 16), SQ(4, 14)                  # c2 format max ~8
-    unit = DamperTable(fsh, cs, SQ(1, 17), 4.0, 1.0, 6.0, 0.5, 2.5, segments_log2=8)
-    sat, (c2, c12, inv), f = _damper_check(unit, "c12 saturates (c1 + c_max = 10 > 8)")
-    _, rc12, _ = unit.reference(f)
-    b = unit.error_bounds()["c12"]
-    must = rc12 - b > cs.max_value
-    cannot = rc12 + b <= cs.max_value
-    assert must.sum() > 1000
-    assert np.all(c12[must] == cs.max_raw)
-    assert must.sum() <= sat["damper"] <= (~cannot).sum()
-    assert set(sat) == {"damper"}
-
-
-def test_damper_clamped_table_entries_are_counted():
-    """c_max beyond the c2 format (and 1/c_min beyond the inverse's): clamped ROM words, counted when used."""
-    fsh, cs, ish = UQ(2, 16), SQ(3, 15), SQ(1, 17)   # c2 max ~4, inverse max ~1
-    c1, cmin, cmax, f1, f2 = 0.0, 1.0, 6.0, 0.25, 1.25
-    unit = DamperTable(fsh, cs, ish, c1, cmin, cmax, f1, f2, segments_log2=8, name="damper0")
+def test_inverse_clamped_table_entries_are_counted():
+    """Outputs whose formats cannot hold the top of the curve: the clamped ROM words count one saturation
+    per output for every item whose interpolation uses them (the end point included)."""
+    ins, fs, ws = UQ(-3, 23), SQ(-5, 23), SQ(-4, 22)        # force max ~0.031 < f2, w' max ~0.0625 < 0.1
     S = 8
-    h = (f2 - f1) / (1 << S)
-    fj = f1 + np.arange((1 << S) + 1) * h
-    c2j = cmax * np.exp(-math.log(cmax / cmin) * (fj - f1) / (f2 - f1))
-    clipped_c2 = np.floor(c2j * 2 ** cs.f + 0.5) > cs.max_raw
-    clipped_inv = np.floor(1 / (c1 + c2j) * 2 ** ish.f + 0.5) > ish.max_raw
-    assert clipped_c2[0] and not clipped_c2[-1] and clipped_inv[-1] and not clipped_inv[0]
-    df = unit.position_error_bound()
-    last_c2 = fj[np.flatnonzero(clipped_c2)[-1]]
-    first_inv = fj[np.flatnonzero(clipped_inv)[0]]
-    fraw = np.arange(0, fsh.max_raw + 1, dtype=np.int64)
+    unit = InverseTable(ins, (fs, ws), RHEO.curve("phi"), segments_log2=S, name="phi0")
+    # which entries cannot fit, from the test's own breakpoints
+    yj = unit.y1 + np.arange((1 << S) + 1) * (unit.y2 - unit.y1) / (1 << S)
+    tj = RHEO.solve("phi", yj)
+    first_clip = []
+    for v, shape in zip(RHEO.outputs("phi", tj), (fs, ws)):
+        clipped = np.floor(v * 2.0 ** shape.f + 0.5) > shape.max_raw
+        assert clipped[-1] and not clipped[0]
+        assert np.all(np.diff(clipped.astype(int)) >= 0)       # a top run of entries
+        first_clip.append(yj[np.flatnonzero(clipped)[0]])
+    assert first_clip[0] < first_clip[1]
+    y_raw = np.arange(0, ins.max_raw + 1, dtype=np.int64)
+    y = y_raw * ins.lsb
     sat = Saturations()
-    c2, c12, inv = unit(fraw, sat)
-    f = fsh.to_float(fraw)
-    rc2, rc12, rinv = unit.reference(f)
-    b = unit.error_bounds()
-    # certain: the exact interpolant would leave the format; possible: an element near a clamped entry
-    must = (rc2 - b["c2"] > cs.max_value).sum() + (rinv - b["inv"] > ish.max_value).sum()
-    can = (f < last_c2 + h + df).sum() + (f > first_inv - h - df).sum()
-    assert must > 1000
-    assert must <= sat["damper0"] <= can
-    assert np.all(c2 <= cs.max_raw) and np.all(inv <= ish.max_raw)
-    assert np.all(c2[f <= f1] == cs.max_raw) and np.all(inv[f >= f2] == ish.max_raw)
+    outs = unit(y_raw, sat)
+    assert set(sat) == {"phi0"}
+    b = [d["total"] for d in unit.error_bounds()]
+    h, dy = (unit.y2 - unit.y1) / (1 << S), unit.position_error_bound()
+    yc = np.clip(y, unit.y1, unit.y2)
+    refs = RHEO.outputs("phi", RHEO.solve("phi", yc))
+    # certain: even the exact output minus the bound leaves the format; possible: near a clamped entry
+    must = sum(int(np.count_nonzero(r - bk > s.max_value)) for r, bk, s in zip(refs, b, (fs, ws)))
+    can = sum(int(np.count_nonzero(y > yf - h - dy)) for yf in first_clip)
+    assert must > 10000
+    assert must <= sat["phi0"] <= can
+    for o, s in zip(outs, (fs, ws)):
+        assert np.all(o <= s.max_raw) and np.all(np.diff(o) >= 0)         # clamped, still monotone
+        assert np.all(o[y_raw >= unit.Y2] == s.max_raw)
     # away from clamped entries the bounds hold
-    away = (f >= last_c2 + h + df) & (f <= first_inv - h - df)
-    assert away.sum() > 1000
-    assert np.all(np.abs(cs.to_float(c2[away]) - rc2[away]) <= b["c2"] * (1 + SLACK))
-    assert np.all(np.abs(ish.to_float(inv[away]) - rinv[away]) <= b["inv"] * (1 + SLACK))
-    # monotone even where clamped
-    assert np.all(np.diff(c2) <= 0) and np.all(np.diff(inv) >= 0)
+    for k, (o, s, r) in enumerate(zip(outs, (fs, ws), refs)):
+        away = (y > unit.y1) & (y < first_clip[k] - h - dy)
+        assert away.sum() > 10000
+        assert np.max(np.abs(o[away] * s.lsb - r[away])) <= b[k] * (1 + SLACK)
+    _row(f"{'clamped entries Phi':<34}", f"saturations {sat['phi0']} in [{must}, {can}]")
 
 
-def test_damper_f1_beyond_input_range_is_constant():
-    unit = DamperTable(UQ(2, 14), SQ(4, 14), SQ(1, 17), 1.0, 0.5, 5.0, 10.0, 20.0, segments_log2=4)
-    c2, c12, inv = unit(np.arange(0, UQ(2, 14).max_raw + 1))
-    assert np.all(c2 == SQ(4, 14).from_float(5.0))
-    assert np.all(c12 == SQ(4, 14).from_float(6.0))
-    assert np.all(inv == SQ(1, 17).from_float(1 / 6))
+def test_inverse_y1_beyond_input_range_is_constant():
+    """y1 above the largest input (Y1 = max_raw, OFF = 0): every item is below the table, its first entry."""
+    mat = Mat(1.0, 0.5, 5.0, 10.0, 20.0)
+    unit = InverseTable(UQ(2, 14), (SQ(5, 13), SQ(3, 15)), mat.curve("phi"), segments_log2=4)
+    assert unit.Y1 == UQ(2, 14).max_raw and unit.OFF == 0
+    y_raw = np.arange(0, UQ(2, 14).max_raw + 1)
+    sat = Saturations()
+    T, w = unit(y_raw, sat)
+    assert np.all(T == 10 * 2 ** 13) and np.all(w == 2 * 2 ** 15) and sat.total == 0
 
 
-def test_damper_reference_pieces():
-    unit = DamperTable(UQ(2, 16), SQ(5, 13), SQ(2, 16), 2.0, 0.5, 5.0, 0.5, 1.5)
-    c2, c12, inv = unit.reference(np.array([0.0, 0.5, 1.0, 1.5, 3.0]))
-    assert c2[0] == c2[1] == 5.0 and c2[3] == c2[4] == 0.5
-    assert c2[2] == pytest.approx(math.sqrt(5.0 * 0.5))                 # geometric mean at the middle
-    assert c2[2] == pytest.approx(unit.A * math.exp(-unit.B * 1.0))
-    assert np.allclose(c12, 2.0 + c2) and np.allclose(inv, 1 / (2.0 + c2))
+def test_inverse_reference_and_end_entries():
+    """The model's reference clamps into [y1, y2]; its end entries are the outputs at t_lo and t_hi; the
+    series case (c1 = 0) has G(t) = t, so Phi's table holds the breakpoints themselves."""
+    unit = InverseTable(UQ(-3, 23), (SQ(-3, 21), SQ(-2, 20)), RHEO.curve("phi"), segments_log2=6)
+    T, w = unit.reference(np.array([0.0, unit.y1, unit.y2, 1.0]))
+    assert list(T) == [0.01, 0.01, 0.05, 0.05]
+    assert w[0] == pytest.approx(0.01 / 500, rel=1e-14) and w[3] == pytest.approx(0.05 / 0.5, rel=1e-14)
+    assert unit.tabs[0][0] == _fmt_round(0.01, SQ(-3, 21)) and unit.tabs[0][-1] == _fmt_round(0.05, SQ(-3, 21))
+    assert unit.tabs[1][0] == _fmt_round(2e-5, SQ(-2, 20)) and unit.tabs[1][-1] == _fmt_round(0.1, SQ(-2, 20))
+    assert unit.y1 == pytest.approx(0.01 * (1 + 0.5 / 500), rel=1e-15)      # MODEL.md: Y1 = f1 (1 + c1/c_max)
+    assert unit.y2 == pytest.approx(0.05 * (1 + 0.5 / 0.5), rel=1e-15)      #           Y2 = f2 (1 + c1/c_min)
+    s = InverseTable(SQ(-3, 21), (SQ(-3, 21), SQ(-3, 21)), SERIES.curve("phi"), segments_log2=5)
+    assert np.array_equal(s.tabs[0], _fmt_round(np.arange(33) * 0.04 / 32, SQ(-3, 21)))
+    assert s.error_bounds()[0]["interp"] == 0.0
+    ps = InverseTable(UQ(-3, 23), (SQ(-3, 21),), RHEO.curve("psi"), segments_log2=6)
+    assert ps.y1 == pytest.approx(0.01 / 500, rel=1e-15) and ps.y2 == pytest.approx(0.05 / 0.5, rel=1e-15)
+    # inputs are magnitudes
+    with pytest.raises(ValueError, match="magnitudes"):
+        s(np.array([-1, 5]))
+    with pytest.raises(ValueError, match="outside"):
+        unit(np.array([1 << 20]))
+
+
+def _curve(**kw) -> OddCurve:
+    base = phi_curve(RHEO.law())
+    fields = {f: getattr(base, f) for f in ("name", "input", "g", "dg", "d2g", "t_lo", "t_hi", "outputs",
+                                            "companions")}
+    fields.update(kw)
+    return OddCurve(**fields)
 
 
 @pytest.mark.parametrize("kwargs,match", [
-    (dict(f1=0.05, f2=0.01), "f1 < f2"), (dict(f1=-0.1), "0 <= f1"), (dict(c_min=0.0), "c_min"),
-    (dict(c_min=6.0), "c_min <= c_max"), (dict(c1=-1.0), "c1 >= 0"), (dict(c1=float("nan")), "finite"),
-    (dict(c_max="big"), "real number"), (dict(f2=0.01 + 1e-9), "below one LSB"),
+    (dict(in_shape=UQ(4, 29)), "at most 32"), (dict(in_shape="UQ(4, 16)"), "Shape"),
+    (dict(out_shapes=(SQ(-3, 21), 1.0)), "Shape"), (dict(out_shapes=(SQ(-3, 21), SQ(4, 30))), "at most 32"),
+    (dict(out_shapes=(SQ(-3, 21),)), "1 output formats for 1 inverse and 1 companions"),
+    (dict(out_shapes=(SQ(-3, 21),) * 3), "3 output formats"),
+    (dict(curve=RHEO.law()), "OddCurve"),
     (dict(segments_log2=0), "segments_log2"), (dict(segments_log2=13), "segments_log2"),
-    (dict(frac_bits=0), "frac_bits"), (dict(scale_bits=30), "scale_bits"),
-    (dict(f_shape=UQ(4, 29)), "at most 32"), (dict(inv_shape=1.0), "Shape"),
+    (dict(segments_log2=4.0), "segments_log2"), (dict(frac_bits=0), "frac_bits"), (dict(frac_bits=25), "frac_bits"),
+    (dict(scale_bits=7), "scale_bits"), (dict(scale_bits=30), "scale_bits"),
+    (dict(curve=_curve(t_lo=0.05, t_hi=0.05)), "t_lo < t_hi"), (dict(curve=_curve(t_lo=0.06)), "t_lo < t_hi"),
+    (dict(curve=_curve(t_lo=-0.01)), "0 <= t_lo"), (dict(curve=_curve(t_hi=float("nan"))), "finite"),
+    (dict(curve=_curve(t_lo="low")), "real number"),
+    (dict(curve=_curve(g=lambda t: -t)), "must increase"),
+    (dict(curve=_curve(t_hi=0.01 + 1e-9)), "below one LSB"),
 ])
-def test_damper_rejects_bad_arguments(kwargs, match):
-    args = dict(f_shape=UQ(-3, 21), c2_shape=SQ(5, 13), inv_shape=SQ(2, 16), c1=2.0, c_min=0.5, c_max=5.0,
-                f1=0.01, f2=0.05)
+def test_inverse_rejects_bad_arguments(kwargs, match):
+    args = dict(in_shape=UQ(-3, 23), out_shapes=(SQ(-3, 21), SQ(-2, 20)), curve=phi_curve(RHEO.law()))
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
-        DamperTable(**args)
+        InverseTable(**args)
+
+
+# ---- the curve identities of the golden element (vectorised golden solves), over random materials
+
+_materials = st.builds(
+    lambda c1, log_cmin, log_ratio, f2, f1_frac: Mat(c1, 10.0 ** log_cmin, 10.0 ** (log_cmin + log_ratio),
+                                                     f1_frac * f2, f2),
+    st.floats(0.0, 10.0), st.floats(-3.0, 3.0), st.floats(1e-3, 4.0), st.floats(1e-3, 100.0),
+    st.floats(0.0, 0.999))
+_fractions = st.lists(st.floats(-3.0, 3.0, allow_subnormal=False), min_size=1, max_size=60)
+
+
+def _golden_params(mat: Mat, n: int):
+    from golden.elements import ElementParams
+    k1, c1, a_min, a_max, L, c_min, c_max, f1, f2 = (np.full(n, float(v)) for v in
+                                                      (1.0, mat.c1, 0.0, 1.0, 1.0, mat.c_min, mat.c_max, mat.f1, mat.f2))
+    return ElementParams.build(k1, c1, a_min, a_max, L, c_min, c_max, f1, f2)
+
+
+def _forces(mat: Mat, fractions) -> np.ndarray:
+    """T over [-3 f2, 3 f2]: the drawn points and the knees, both signs."""
+    base = np.array([0.0, mat.f1, mat.f2, 0.5 * (mat.f1 + mat.f2), 3 * mat.f2, np.nextafter(mat.f1, 0),
+                     np.nextafter(mat.f2, np.inf)])
+    T = np.concatenate([base, -base, np.asarray(fractions) * mat.f2])
+    return T
+
+
+@settings(derandomize=True, database=None, max_examples=300, deadline=None)
+@given(_materials, _fractions)
+def test_golden_phi_inverts_G(mat, fractions):
+    """Phi(G(T)) = T to 1e-12 relative (golden ElementParams.phi), and its w' is H at the returned T."""
+    T = _forces(mat, fractions)
+    Y = mat.G(T)
+    p = _golden_params(mat, T.size)
+    assert p.nonlinear
+    Tg, wd = p.phi(Y)
+    assert np.all(np.abs(Tg - T) <= 1e-12 * np.abs(T) + 1e-300), f"{mat}: max rel {np.max(np.abs(Tg - T) / np.abs(T))}"
+    assert np.all(np.abs(wd - mat.H(Tg)) <= 1e-12 * np.abs(mat.H(Tg)) + 1e-300)
+    assert np.all(np.sign(Tg) == np.sign(T))
+
+
+@settings(derandomize=True, database=None, max_examples=300, deadline=None)
+@given(_materials, _fractions)
+def test_golden_psi_inverts_H(mat, fractions):
+    """Psi(H(T)) = T to 1e-12 relative (golden ElementParams.psi)."""
+    T = _forces(mat, fractions)
+    W = mat.H(T)
+    p = _golden_params(mat, T.size)
+    Tg = p.psi(W)
+    assert np.all(np.abs(Tg - T) <= 1e-12 * np.abs(T) + 1e-300), f"{mat}: max rel {np.max(np.abs(Tg - T) / np.abs(T))}"

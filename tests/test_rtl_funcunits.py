@@ -8,10 +8,14 @@ elements by calling the model on sub-arrays). Every output must appear exactly `
 input, and only then. The expected results always come from the model, never from the gateware.
 
 Cases: exhaustive over every input of small formats chosen to reach every path (x <= 0, mantissa
-rounding, left and right output shifts, saturating outputs, odd and negative fraction bits; damper
-position shifts > 0, = 0 and < 0, clipped table entries, c12 saturation, unreachable f2 or interpolated
-piece), and the configurations press-2d-rheological uses under the narrow, medium and wide presets with
-a few thousand dense and random inputs each. Simulator throughput is roughly 5-10k cycles/s.
+rounding, left and right output shifts, saturating outputs, odd and negative fraction bits; inverse
+tables (the damper's Phi with its companion w', and Psi): every non-negative magnitude, position shifts
+> 0, = 0 and < 0, the position limited to the end point, clipped table entries in one or both tables,
+y1 = 0, unreachable y2 or interpolated piece), and the configurations press-2d-rheological uses under
+the narrow, medium and wide presets with a few thousand dense and random inputs each (random idle
+cycles between them). The inverse table's `below` / `above` fields are checked against the model's
+thresholds (hw/arith.py FixedArith.inverse: y <= Y1, y >= Y2), and PipeArith.inverse (hw/pipeline.py)
+is checked in a small lane. Simulator throughput is roughly 3-10k cycles/s.
 """
 from __future__ import annotations
 
@@ -20,12 +24,14 @@ import gc
 import numpy as np
 import pytest
 from amaranth.back import rtlil
-from amaranth.hdl import signed, unsigned
+from amaranth.hdl import Module, Signal, signed, unsigned
 from amaranth.sim import Simulator
 
+from golden.elements import DamperLaw
+from hw.datapath import phi_curve, psi_curve
 from hw.fixed import SQ, UQ, Saturations, shift_round
-from hw.funcunits import DamperTable, Rsqrt
-from hw.rtl_funcunits import DamperUnit, RsqrtUnit
+from hw.funcunits import InverseTable, Rsqrt
+from hw.rtl_funcunits import InverseTableUnit, RsqrtUnit
 
 
 # ================================================================================================ harness
@@ -171,9 +177,9 @@ def test_rsqrt_exhaustive_case_reaches_every_path():
     assert (model.Y + ((k - 8) >> 1) - 8 < 0).any()
 
 
-# ================================================================================================ damper
+# ================================================================================================ inverse tables
 
-def _damper_count(model):
+def _inverse_count(model):
     def count(xs):
         sat = Saturations()
         model(xs, sat)
@@ -181,68 +187,87 @@ def _damper_count(model):
     return count
 
 
-def _check_damper(model: DamperTable, x, idle=0.0, seed=0):
-    dut = DamperUnit(model)
-    assert dut.latency == 9
+def _check_inverse(model: InverseTable, x, idle=0.0, seed=0):
+    """Every output field of an InverseTableUnit against the model at the magnitudes x."""
+    dut = InverseTableUnit(model)
+    assert dut.latency == 8
+    n = len(model.out_shapes)
+    assert dut.output_fields == tuple(f"out{k}" for k in range(n))
     sat = Saturations()
-    c2, c12, inv = model(x, sat)
-    hw = _simulate(dut, x, ("c2", "c12", "inv", "saturations"), idle=idle, seed=seed)
-    for name, ref in (("c2", c2), ("c12", c12), ("inv", inv)):
+    refs = model(x, sat)
+    hw = _simulate(dut, x, (*dut.output_fields, "below", "above", "saturations"), idle=idle, seed=seed)
+    for name, ref in zip(dut.output_fields, refs):
         bad = np.nonzero(hw[name] != ref)[0]
-        assert bad.size == 0, (f"{name}: {bad.size} outputs differ, first f = {x[bad[:5]].tolist()}: "
+        assert bad.size == 0, (f"{name}: {bad.size} outputs differ, first y = {x[bad[:5]].tolist()}: "
                                f"hw {hw[name][bad[:5]].tolist()} model {ref[bad[:5]].tolist()}")
+    # the pieces as hw/arith.py FixedArith.inverse reports them
+    assert np.array_equal(hw["below"], (x <= model.Y1).astype(np.int64)), "below differs"
+    assert np.array_equal(hw["above"], (x >= model.Y2).astype(np.int64)), "above differs"
     assert int(hw["saturations"].sum()) == sat.total
-    per = _per_element_counts(_damper_count(model), x, 3)
+    per = _per_element_counts(_inverse_count(model), x, n)
     bad = np.nonzero(hw["saturations"] != per)[0]
-    assert bad.size == 0, f"saturation counts differ at f = {x[bad[:5]].tolist()}"
+    assert bad.size == 0, f"saturation counts differ at y = {x[bad[:5]].tolist()}"
     return hw, sat.total
 
 
-# (f_shape, c2_shape, inv_shape, c1, c_min, c_max, f1, f2, segments_log2, frac_bits, scale_bits)
-DAMPER_EXHAUSTIVE = {
-    # 8192 inputs, signed f (negative forces too), pos_shift 22 > 0; c2 entries above SQ(5, 7) and inv
-    # entries above SQ(1, 11) are clipped; c12 saturates
-    "signed-clipped": (SQ(4, 9), SQ(5, 7), SQ(1, 11), 0.25, 0.5, 20.0, 1.0, 5.0, 5, 8, 25),
-    # 8192 inputs, 8-bit scale rounded up (K_q > K): just below f2 the position passes the end point and
-    # is limited to it (visibly: the inv table's last step is ~250 LSBs)
-    "position-limit": (UQ(5, 8), UQ(6, 6), UQ(0, 12), 1.0, 1.0, 50.0, 3.0, 13.0, 4, 6, 8),
-    # 4096 inputs, unsigned f, pos_shift -8 < 0 (a left shift of D), 8-bit scale, position limit reached
-    "left-shift": (UQ(12, 0), UQ(4, 8), UQ(1, 11), 0.5, 1.0, 10.0, 100.3, 3000.7, 3, 24, 8),
+def _curve(kind, law):
+    return phi_curve(DamperLaw(*law)) if kind == "phi" else psi_curve(DamperLaw(*law))
+
+
+# (curve, (c1, c_min, c_max, f1, f2), in_shape, out_shapes, segments_log2, frac_bits, scale_bits)
+INVERSE_EXHAUSTIVE = {
+    # 4096 magnitudes of a signed input, pos_shift 23 > 0; the top entries of both tables are clipped
+    # (T above SQ(3, 7), w' above SQ(2, 11)): up to 2 saturations per item
+    "signed-clipped": ("phi", (0.25, 0.5, 20.0, 1.0, 5.0), SQ(5, 9), (SQ(3, 7), SQ(2, 11)), 5, 8, 25),
+    # 8192 inputs, 8-bit scale rounded up (K_q > K): just below y2 the position passes the end point and
+    # is limited to it
+    "position-limit": ("phi", (0.0, 1.0, 50.0, 3.0, 13.0), UQ(5, 8), (UQ(5, 7), UQ(4, 8)), 4, 6, 8),
+    # 4096 inputs, pos_shift -8 < 0 (a left shift of D), 8-bit scale, position limit reached
+    "left-shift": ("phi", (0.0, 1.0, 10.0, 100.3, 3000.7), UQ(12, 0), (UQ(12, 0), UQ(12, 0)), 3, 24, 8),
     # 4096 inputs, pos_shift = 0
-    "no-shift": (UQ(8, 4), UQ(6, 6), UQ(0, 12), 1.0, 2.0, 60.0, 20.0, 36.0, 4, 16, 13),
-    # 8192 inputs, f2 beyond the format (F2 = max_raw + 1: the c_min piece is unreachable)
-    "f2-unreachable": (SQ(6, 7), SQ(8, 6), UQ(0, 14), 2.0, 1.0, 50.0, 40.0, 100.0, 4, 12, 25),
-    # 256 inputs, f1 beyond the format (F1 = max_raw, OFF = 0: only the c_max piece)
-    "f1-unreachable": (UQ(4, 4), SQ(7, 5), SQ(2, 10), 1.0, 2.0, 30.0, 20.0, 40.0, 4, 16, 25),
+    "no-shift": ("phi", (0.0, 2.0, 60.0, 20.0, 36.0), UQ(8, 4), (UQ(6, 6), UQ(5, 7)), 4, 16, 13),
+    # 4096 magnitudes, y2 beyond the format (Y2 = max_raw + 1: `above` never set); w' entries clipped
+    "y2-unreachable": ("phi", (2.0, 1.0, 50.0, 40.0, 100.0), SQ(8, 6), (SQ(8, 6), UQ(3, 11)), 4, 12, 25),
+    # 256 inputs, y1 beyond the format (Y1 = max_raw, OFF = 0: only the first entries)
+    "y1-unreachable": ("phi", (1.0, 2.0, 30.0, 20.0, 40.0), UQ(4, 4), (SQ(7, 5), SQ(6, 6)), 4, 16, 25),
+    # 8192 inputs, Psi (one output, a 1-bit saturation count), f1 = 0 so y1 = 0 and Y1 = 0
+    "psi-y1-zero": ("psi", (0.0, 1.0, 100.0, 0.0, 2.0), UQ(2, 11), (SQ(3, 9),), 6, 16, 25),
+    # 8192 magnitudes, Psi with clipped entries (T above SQ(2, 12)), 2 idle cycles in 10
+    "psi-clipped": ("psi", (0.5, 0.5, 50.0, 1.0, 3.0), SQ(4, 10), (SQ(2, 12),), 7, 16, 25),
 }
 
 
-def _position_limit_reached(model: DamperTable) -> bool:
-    """Whether some f strictly between F1 and F2 has a position past the end point 2^(S+P) (step 2)."""
-    f = np.arange(model.F1 + 1, model.F2, dtype=np.int64)
-    pos = shift_round(f * model.K_raw - model.OFF, model.pos_shift)
+def _position_limit_reached(model: InverseTable) -> bool:
+    """Whether some y strictly between Y1 and Y2 has a position past the end point 2^(S+P) (step 2)."""
+    y = np.arange(model.Y1 + 1, model.Y2, dtype=np.int64)
+    pos = shift_round(y * model.K_raw - model.OFF, model.pos_shift)
     return bool((pos > 1 << (model.S + model.P)).any())
 
 
-@pytest.mark.parametrize("case", list(DAMPER_EXHAUSTIVE))
-def test_damper_exhaustive(case):
-    fs, c2s, invs, c1, cmin, cmax, f1, f2, S, P, sb = DAMPER_EXHAUSTIVE[case]
-    model = DamperTable(fs, c2s, invs, c1, cmin, cmax, f1, f2, segments_log2=S, frac_bits=P, scale_bits=sb)
-    x = np.arange(fs.min_raw, fs.max_raw + 1, dtype=np.int64)
-    _, total = _check_damper(model, x)
+@pytest.mark.parametrize("case", list(INVERSE_EXHAUSTIVE))
+def test_inverse_exhaustive(case):
+    kind, law, ins, outs, S, P, sb = INVERSE_EXHAUSTIVE[case]
+    model = InverseTable(ins, outs, _curve(kind, law), segments_log2=S, frac_bits=P, scale_bits=sb)
+    x = np.arange(0, ins.max_raw + 1, dtype=np.int64)
+    _, total = _check_inverse(model, x, idle=0.2 if case == "psi-clipped" else 0.0, seed=len(case))
     # the case reaches what it is there for
+    clipped = [bool(c.any()) for c in model.clips]
     if case == "signed-clipped":
-        assert model.pos_shift > 0 and model.clip_c2.any() and model.clip_inv.any() and total > 0
+        assert model.pos_shift > 0 and all(clipped) and total > 0
     elif case == "position-limit":
         assert model.pos_shift > 0 and _position_limit_reached(model)
     elif case == "left-shift":
         assert model.pos_shift < 0 and _position_limit_reached(model)
     elif case == "no-shift":
         assert model.pos_shift == 0
-    elif case == "f2-unreachable":
-        assert model.F2 == fs.max_raw + 1
-    elif case == "f1-unreachable":
-        assert model.F1 == fs.max_raw and model.OFF == 0
+    elif case == "y2-unreachable":
+        assert model.Y2 == ins.max_raw + 1 and clipped == [False, True] and total > 0
+    elif case == "y1-unreachable":
+        assert model.Y1 == ins.max_raw and model.OFF == 0
+    elif case == "psi-y1-zero":
+        assert model.Y1 == 0 and len(outs) == 1
+    elif case == "psi-clipped":
+        assert clipped == [True] and total > 0
 
 
 # ================================================================================================ the project's units
@@ -252,23 +277,15 @@ SCENE = "press-2d-rheological"
 
 @pytest.fixture(scope="module")
 def scene_units():
-    """{preset: {name: model}} for press-2d-rheological, formats from a full range analysis (as
-    simulate_fixed does; the analysis is preset-independent, so it runs once, about 9 s), identical
-    configurations (inv_l and tinv) kept once."""
-    from golden.scene import compile_scene, load_scene
-    from hw.bittrue import BitTrue, range_analysis
-    from hw.formats import PRESETS, derive
-    from hw.datapath import Params
-    from hw.units import HardwareUnits
+    """{preset: {name: model}} for press-2d-rheological: the function units `hw.bittrue.BitTrue(sys,
+    preset)` builds (formats from a full range analysis, as `rheo simulate --backend fixed`; cached per
+    session in tests/conftest.py), identical configurations (inv_l and tinv) kept once."""
+    from conftest import bittrue
 
-    sys = compile_scene(load_scene(SCENE))
-    hu = HardwareUnits.of(sys)
-    peaks = range_analysis(sys, Params.of(sys, hu), hu, sys.n_steps)
     result = {}
     for preset in ("narrow", "medium", "wide"):
-        bt = BitTrue(sys, preset, formats=derive(peaks, PRESETS[preset], dict(sys.formats)))
         units, seen = {}, set()
-        for name, u in bt.ar.units.items():
+        for name, u in bittrue(SCENE, preset).ar.units.items():
             key = repr({k: v for k, v in u.to_dict().items() if k != "name"})
             if key not in seen:
                 seen.add(key)
@@ -301,33 +318,103 @@ def _rsqrt_inputs(model: Rsqrt, seed: int, n_random=3000):
     return _shuffle(_inputs(s, vals), seed)
 
 
-def _damper_inputs(model: DamperTable, seed: int, n_random=1500):
-    """Extremes, F1 and F2 and neighbours, every table breakpoint and neighbours (so every ROM word is
-    read), random inputs around the interpolated piece and over the whole format."""
-    s = model.f_shape
+def _inverse_inputs(model: InverseTable, seed: int, n_random=10000):
+    """Extremes, Y1 and Y2 and neighbours, every table breakpoint and neighbours (so every ROM word is
+    read), random magnitudes around the interpolated piece and over the whole format."""
+    s = model.in_shape
     rng = np.random.default_rng(seed)
     bp = np.floor(model.breakpoints * 2.0 ** s.f).astype(np.int64)
-    lo, hi = max(model.F1 - 20, s.min_raw), min(model.F2 + 20, s.max_raw)
-    vals = [s.min_raw, s.min_raw + 1, -1, 0, 1, s.max_raw - 1, s.max_raw,
-            *range(model.F1 - 3, model.F1 + 4), *range(model.F2 - 3, model.F2 + 4),
+    lo, hi = max(model.Y1 - 20, 0), min(model.Y2 + 20, s.max_raw)
+    vals = [0, 1, 2, s.max_raw - 1, s.max_raw,
+            *range(model.Y1 - 3, model.Y1 + 4), *range(model.Y2 - 3, model.Y2 + 4),
             *(bp - 1), *bp, *(bp + 1),
             *rng.integers(lo, hi, n_random, endpoint=True),
-            *rng.integers(s.min_raw, s.max_raw, n_random // 5, endpoint=True)]
-    return _shuffle(_inputs(s, vals), seed)
+            *rng.integers(0, s.max_raw, n_random // 4, endpoint=True)]
+    x = _inputs(s, vals)
+    return _shuffle(x[x >= 0], seed)
 
 
 @pytest.mark.parametrize("preset", ["narrow", "medium", "wide"])
 def test_scene_units(scene_units, preset):
     units = scene_units[preset]
     assert any(isinstance(u, Rsqrt) for u in units.values())
-    assert any(isinstance(u, DamperTable) for u in units.values())
+    tables = {name: u for name, u in units.items() if isinstance(u, InverseTable)}
+    assert set(tables) == {"phi", "psi"}
+    assert len(tables["phi"].out_shapes) == 2 and len(tables["psi"].out_shapes) == 1
     for k, (name, model) in enumerate(units.items()):
         if isinstance(model, Rsqrt):
             x = _rsqrt_inputs(model, seed=100 + k)
             _check_rsqrt(model, x, idle=0.1, seed=k)
-        elif isinstance(model, DamperTable):
-            x = _damper_inputs(model, seed=200 + k)
-            _check_damper(model, x, idle=0.1, seed=k)
+        else:
+            x = _inverse_inputs(model, seed=200 + k)
+            assert len(x) > 10000
+            _check_inverse(model, x, idle=0.1, seed=k)
+
+
+# ================================================================================================ the pipeline
+
+def _run_lane(m, x_sig, valid, xs, probes, gate_sig=None, gates=None):
+    """Feed xs one per cycle into a PipeArith lane and sample `probes` ({name: (signal, stage)}) at the
+    stage at which each is valid; returns {name: values in input order}."""
+    horizon = max(st for _, st in probes.values()) + 2
+    got = {k: {} for k in probes}
+
+    async def testbench(ctx):
+        for c in range(len(xs) + horizon):
+            ctx.set(valid, int(c < len(xs)))
+            ctx.set(x_sig, int(xs[c]) if c < len(xs) else 0)
+            if gate_sig is not None:
+                ctx.set(gate_sig, int(gates[c]) if c < len(xs) else 0)
+            await ctx.tick()
+            # after this edge, a value valid at stage st holds the item presented in cycle c - st + 1
+            for k, (sig, st) in probes.items():
+                j = c - st + 1
+                if 0 <= j < len(xs):
+                    got[k][j] = int(ctx.get(sig))
+
+    sim = Simulator(m)
+    sim.add_clock(1e-8)
+    sim.add_testbench(testbench)
+    sim.run()
+    return {k: np.array([v[j] for j in range(len(xs))], np.int64) for k, v in got.items()}
+
+
+def test_pipeline_inverse():
+    """PipeArith.inverse: below, above and the outputs valid at the operand's stage + latency, in its gate;
+    the unit's saturations counted under the curve's name, only where the gate is open."""
+    from hw.pipeline import PBool, PipeArith
+    kind, law, ins, outs, S, P, sb = INVERSE_EXHAUSTIVE["signed-clipped"]
+    curve = _curve(kind, law)
+    model = InverseTable(ins, outs, curve, segments_log2=S, frac_bits=P, scale_bits=sb)
+    fmt = {"drive": ins, "force": outs[0], "wdot": outs[1], "other": SQ(6, 8)}
+    m = Module()
+    valid, x, g = Signal(), Signal(signed(ins.width)), Signal()
+    ar = PipeArith(m, fmt, {"phi": model}, valid, "lane")
+    with ar:
+        gate = ar.gate(PBool(g, 0))
+        mag = gate.take(ar.input(x, "drive", 0))
+        below, above, vals = ar.inverse(mag, curve)
+        events = dict(ar.saturation_events())
+        with pytest.raises(ValueError, match="operand 'other' is SQ"):
+            ar.inverse(ar.input(x, "other", 0), curve)
+    L = 8                                        # InverseTableUnit.latency (checked in _check_inverse)
+    assert [v.q for v in vals] == ["force", "wdot"]
+    for v in (below, above, *vals):
+        assert v.stage == L and v.gate is mag.gate
+    assert set(events) == {"phi"}
+    rng = np.random.default_rng(5)
+    xs = _shuffle(np.arange(0, ins.max_raw + 1, 3), 5)
+    gates = rng.random(len(xs)) < 0.7
+    probes = {"below": (below.sig, L), "above": (above.sig, L), "out0": (vals[0].sig, L),
+              "out1": (vals[1].sig, L), "sat": (events["phi"], L + 2)}
+    got = _run_lane(m, x, valid, xs, probes, g, gates)
+    refs = model(xs)
+    assert np.array_equal(got["out0"], refs[0]) and np.array_equal(got["out1"], refs[1])
+    assert np.array_equal(got["below"], (xs <= model.Y1).astype(np.int64))
+    assert np.array_equal(got["above"], (xs >= model.Y2).astype(np.int64))
+    per = _per_element_counts(_inverse_count(model), xs, 2)
+    assert per.sum() > 100
+    assert np.array_equal(got["sat"], np.where(gates, per, 0))
 
 
 # ================================================================================================ interface
@@ -336,13 +423,13 @@ def test_scene_units(scene_units, preset):
 @pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
 def test_constructor_rejects_wrong_models():
     rs = Rsqrt(SQ(6, 8), SQ(4, 10), seed_bits=6)
-    dp = DamperTable(UQ(8, 4), UQ(6, 6), UQ(0, 12), 1.0, 2.0, 60.0, 20.0, 36.0, segments_log2=4)
-    for bad in (dp, None, SQ(6, 8), "rsqrt"):
+    it = InverseTable(UQ(8, 4), (UQ(6, 6), UQ(5, 7)), _curve("phi", (0.0, 2.0, 60.0, 20.0, 36.0)), segments_log2=4)
+    for bad in (it, None, SQ(6, 8), "rsqrt"):
         with pytest.raises(TypeError, match="RsqrtUnit needs a hw.funcunits.Rsqrt model"):
             RsqrtUnit(bad)
-    for bad in (rs, None, 3.0):
-        with pytest.raises(TypeError, match="DamperUnit needs a hw.funcunits.DamperTable model"):
-            DamperUnit(bad)
+    for bad in (rs, None, 3.0, it.curve):
+        with pytest.raises(TypeError, match="InverseTableUnit needs a hw.funcunits.InverseTable model"):
+            InverseTableUnit(bad)
     gc.collect()          # the rejected objects' warnings fire here, under this test's filter
 
 
@@ -353,15 +440,21 @@ def test_signatures_and_conversion():
     assert u.i.payload.shape() == signed(14)
     assert u.o.payload.value.shape() == unsigned(14)
     assert u.o.payload.saturated.shape() == unsigned(1)
-    dp = DamperTable(UQ(8, 4), SQ(6, 6), UQ(0, 12), 1.0, 2.0, 60.0, 20.0, 36.0, segments_log2=4)
-    d = DamperUnit(dp)
+    phi = InverseTable(UQ(8, 4), (SQ(6, 6), UQ(5, 7)), _curve("phi", (0.0, 2.0, 60.0, 20.0, 36.0)), segments_log2=4)
+    d = InverseTableUnit(phi)
+    assert d.latency == 8
     assert d.i.payload.shape() == unsigned(12)
-    assert d.o.payload.c2.shape() == signed(12) and d.o.payload.c12.shape() == signed(12)
-    assert d.o.payload.inv.shape() == unsigned(12) and d.o.payload.saturations.shape() == unsigned(2)
-    # both convert to RTLIL (what Yosys reads), ROMs included. The ports are listed explicitly: Amaranth
+    assert d.o.payload.out0.shape() == signed(12) and d.o.payload.out1.shape() == unsigned(12)
+    assert d.o.payload.below.shape() == unsigned(1) and d.o.payload.above.shape() == unsigned(1)
+    assert d.o.payload.saturations.shape() == unsigned(2)
+    psi = InverseTable(SQ(4, 10), (SQ(2, 12),), _curve("psi", (0.5, 0.5, 50.0, 1.0, 3.0)), segments_log2=7)
+    q = InverseTableUnit(psi)
+    assert q.output_fields == ("out0",) and q.i.payload.shape() == signed(14)
+    assert q.o.payload.saturations.shape() == unsigned(1)
+    # all convert to RTLIL (what Yosys reads), ROMs included. The ports are listed explicitly: Amaranth
     # 0.5 cannot infer them from a Component whose always_ready streams hold ready = Const(1)
     # (amaranth-lang/amaranth#1574)
-    for dut in (u, d):
+    for dut in (u, d, q):
         ports = [dut.i.valid, dut.i.payload, dut.o.valid, dut.o.payload.as_value()]
         text = rtlil.convert(dut, ports=ports)
         assert "$mem" in text
