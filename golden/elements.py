@@ -88,7 +88,8 @@ class ElementParams:
         f1, f2 = np.asarray(f1, float), np.asarray(f2, float)
         varies = c_max > c_min
         B = np.where(varies, np.log(np.where(varies, c_max / c_min, 1.0)) / np.where(varies, f2 - f1, 1.0), 0.0)
-        A = c_max * np.exp(B * np.where(varies, f1, 0.0))
+        with np.errstate(over="ignore"):             # A only names the law; the code uses c_max and f1
+            A = c_max * np.exp(B * np.where(varies, f1, 0.0))
         return cls(_compact(k1), _compact(c1), _compact(a_min), _compact(a_max), np.asarray(L, float),
                    _compact(c_min), _compact(c_max), _compact(A), _compact(B), bool(np.any(varies)),
                    bool(np.all(np.asarray(a_min) == np.asarray(a_max))),
@@ -99,7 +100,7 @@ class ElementParams:
         """c2 at the force magnitude f (MODEL.md section 2)."""
         if not self.nonlinear:
             return self.c_min
-        return np.clip(self.A * np.exp(-self.B * f), self.c_min, self.c_max)
+        return np.clip(self.c_max * np.exp(-self.B * (np.asarray(f, float) - self.f1)), self.c_min, self.c_max)
 
     def _mid(self, mag, lo, hi):
         """Items whose magnitude lies on the exponential piece, [lo, hi) (lo = inf: constant dampers)."""

@@ -70,6 +70,14 @@ def _typical_increment(per_step: np.ndarray) -> float:
     return float(np.median(moving)) if moving.size else 0.0
 
 
+PSI_EXTRA_SEGMENTS_LOG2 = 4    # Psi's input W spans f1 / c_max .. f2 / c_min (c_max / c_min ~ 1000): 16x the
+                                # segments keep its steep start within a fraction of a per cent
+
+
+def _segments(table: str, preset) -> int:
+    return min(12, preset.damper_segments_log2 + (PSI_EXTRA_SEGMENTS_LOG2 if table == "psi" else 0))
+
+
 def function_units(fmt: FormatSet, params: Params) -> dict:
     from .funcunits import InverseTable, Rsqrt
     pre = fmt.preset
@@ -81,7 +89,7 @@ def function_units(fmt: FormatSet, params: Params) -> dict:
     for name, curve in params.curves.items():
         if all(q in fmt for q in (curve.input, *curve.outputs)):
             units[name] = InverseTable(fmt[curve.input], [fmt[q] for q in curve.outputs], curve,
-                                       segments_log2=pre.damper_segments_log2)
+                                       segments_log2=_segments(name, pre))
     return units
 
 
