@@ -40,7 +40,7 @@ memory reads while busy return undefined words: the host shares the pipeline's r
   0x000006  CYCLES (read): clock cycles spent running since reset
   0x100000 + field * NODE_STRIDE + n      node n, field 0..D-1 = x_k, D..2D-1 = u_k (raw, sign-extended)
   0x200000 + field * ELEM_STRIDE + slot  element state by lane slot (slot = lane * S + position):
-                                          field 0 = a, 1 = |T| of the previous step (nonlinear damper)
+                                          field 0 = a (the only element state)
 """
 from __future__ import annotations
 
@@ -82,7 +82,7 @@ class CoreConfig:
     units: dict
     lanes: int = 1             # P: element lanes (and pair lanes)
     node_lanes: int = 1        # Q: node lanes (nodes per memory word)
-    init: dict = field(default_factory=dict)     # initial raw state: X, U (lists), A, FP
+    init: dict = field(default_factory=dict)     # initial raw state: X, U (lists), A
 
     def __post_init__(self):
         for name, v in (("lanes", self.lanes), ("node_lanes", self.node_lanes)):
@@ -93,7 +93,7 @@ class CoreConfig:
     def of(cls, bt, lanes=1, node_lanes=1) -> "CoreConfig":
         st = bt.initial_state()
         return cls(bt.params, bt.formats, bt.ar.units, lanes, node_lanes,
-                   {"X": st.X, "U": st.U, "A": st.A, "FP": st.FP})
+                   {"X": st.X, "U": st.U, "A": st.A})
 
     # ---- static mapping
     @property
@@ -167,7 +167,7 @@ class CoreConfig:
                 + n // self.node_lanes)
 
     def elem_addr(self, field, e):
-        """Host word address of element e's state field (0: a, 1: |T| of the previous step)."""
+        """Host word address of element e's state field (0: a, the only one)."""
         e = np.asarray(e)
         return ELEM_BASE + (field << (self.pos_bits + self.lane_bits)) + ((e % self.lanes) << self.pos_bits) + e // self.lanes
 
@@ -199,7 +199,9 @@ class Core(wiring.Component):
     """The specialised accelerator for one scene (see the module docstring for phases and registers).
 
     After elaboration: `cycles_per_step`, `drain_elements`, `drain_nodes`, `sat_quantities`,
-    `const_saturations` and `units_present` describe what was built.
+    `const_saturations` and `units_present` describe what was built; `memories` lists every memory of
+    the hierarchy (name, depth, width): the core's own and those inside its function units (the 1/sqrt
+    seed ROMs, the Phi / Psi table ROMs), the latter named by their place in the hierarchy.
     """
 
     def __init__(self, cfg: CoreConfig):
@@ -212,7 +214,23 @@ class Core(wiring.Component):
     # the static figures need the pipelines' depths: build once, cache
     def elaborate(self, platform):
         m = self._build()
-        return m
+        frag = Fragment.get(m, platform)      # the whole hierarchy: function units' memories counted too
+        self._unit_memories(frag)
+        return frag
+
+    def _unit_memories(self, frag):
+        """Append to `memories` every memory of the elaborated hierarchy that the core did not add itself."""
+        own = {id(mem) for mem in self._own_memories}
+
+        def walk(f, path):
+            for n, (sub, name, _) in enumerate(f.subfragments):
+                where = f"{path}.{name if name is not None else f'U${n}'}" if path else str(name)
+                for mem in sub.origins or ():
+                    if isinstance(mem, Memory) and id(mem) not in own:
+                        self.memories.append({"name": where, "depth": mem.depth,
+                                              "width": Shape.cast(mem.shape).width})
+                walk(sub, where)
+        walk(frag, "")
 
     def _build(self):
         cfg, p, fmt = self.cfg, self.cfg.params, self.cfg.formats
@@ -221,9 +239,11 @@ class Core(wiring.Component):
         m = Module()
         host = self.host
         self.memories = []
+        self._own_memories = []
 
         def add_mem(name, mem):
             m.submodules[name] = mem
+            self._own_memories.append(mem)
             self.memories.append({"name": name, "depth": mem.depth, "width": Shape.cast(mem.shape).width})
 
         busy = Signal()
@@ -328,43 +348,31 @@ class Core(wiring.Component):
             iw, is_, jw, js = (_registered(m, v, f"{v.name}_r") for v in (iw, is_, jw, js))
             Xi, Ui = read_node(iw, is_, f"el{lane}_ni")
             Xj, Uj = read_node(jw, js, f"el{lane}_nj")
-            # element state
-            a_shape, f_shape = as_shape(fmt["a"]), as_shape(fmt["force"])
-            has_a, has_fp = not p.fixed_a, p.damper is not None
+            # element state: a only (the damper is solved exactly each step, no |T| of the previous step)
+            a_shape = as_shape(fmt["a"])
+            has_a = not p.fixed_a
             a_vals = np.zeros(S, np.int64)
             a_vals[:len(items)] = np.asarray(init["A"])[items]
             A_mem = Memory(shape=a_shape, depth=S, init=[int(v) for v in a_vals])
-            FP_mem = Memory(shape=f_shape, depth=S, init=[]) if has_fp else None
             add_mem(f"el{lane}_a", A_mem)
             A_wp = A_mem.write_port() if has_a else None
             A_rp = A_mem.read_port(domain="sync")
             m.d.comb += A_rp.addr.eq(cnt)
-            if has_fp:
-                add_mem(f"el{lane}_fp", FP_mem)
-                FP_wp = FP_mem.write_port()
-                FP_rp = FP_mem.read_port(domain="sync")
-                m.d.comb += FP_rp.addr.eq(cnt)
-            else:
-                FP_rp = None
             with ar:
                 A_r = _registered(m, A_rp.data, f"el{lane}_a_r")
-                FP_r = _registered(m, FP_rp.data, f"el{lane}_fp_r") if has_fp else None
                 A = ar.input(A_r, "a", 2)
-                FP = ar.input(FP_r, "force", 2) if has_fp else ar.zeros("force", 1)
-                fe, newA, newFP = element_kernel(
+                fe, newA = element_kernel(
                     ar, p, [ar.input(v, "x", 4) for v in Xi], [ar.input(v, "x", 4) for v in Xj],
-                    [ar.input(v, "u", 4) for v in Ui], [ar.input(v, "u", 4) for v in Uj], A, FP)
+                    [ar.input(v, "u", 4) for v in Ui], [ar.input(v, "u", 4) for v in Uj], A)
                 fe_neg = [ar.neg(v) for v in fe]          # node j's word (saturating, as the model)
-                outs = fe + fe_neg + [v for v in (newA, newFP) if v is not None]
+                outs = fe + fe_neg + ([newA] if newA is not None else [])
                 s_out = max(v.stage for v in outs)
             slot_at = ar.delay(cnt[:_bits(S) + 1], 0, s_out)
             en = ar.valid_at(s_out)
             if has_a:
                 m.d.comb += [A_wp.addr.eq(slot_at), A_wp.data.eq(ar.at(newA, s_out)), A_wp.en.eq(en)]
-            if has_fp:
-                m.d.comb += [FP_wp.addr.eq(slot_at), FP_wp.data.eq(ar.at(newFP, s_out)), FP_wp.en.eq(en)]
-            self.elem_state_mems.append((A_mem, FP_mem, A_wp if has_a else None, FP_wp if has_fp else None,
-                                         A_rp, FP_rp, A_r, FP_r))
+            # (memory, pipeline write port or None, read port, registered read data)
+            self.elem_state_mems.append((A_mem, A_wp, A_rp, A_r))
             # the ROM of this lane: node words/slots and per-element parameters
             self._rom(m, add_mem, f"el{lane}_rom", rom_fields, S, cnt)
             fe_out = [ar.at(v, s_out) for v in fe]
@@ -539,17 +547,15 @@ class Core(wiring.Component):
         e_field = e_off >> (pbits + lbits)
         e_pos, e_lane = e_off[:pbits], e_off[pbits:pbits + lbits]
         elem_read = []
-        for lane, (A_mem, FP_mem, A_wp, FP_wp, A_rp, FP_rp, A_r, FP_r) in enumerate(self.elem_state_mems):
-            for fi, (mem, wp, rp, data_r) in enumerate(((A_mem, A_wp, A_rp, A_r), (FP_mem, FP_wp, FP_rp, FP_r))):
-                if mem is None:
-                    continue
-                with m.If(~busy):           # the element lane's read port, the host's while idle
-                    m.d.comb += rp.addr.eq(e_pos)
-                elem_read.append((fi, lane, data_r))
-                if wp is None:          # no a-state in the pipeline: the host still loads a
-                    wp = mem.write_port()
-                    m.d.comb += [wp.addr.eq(e_pos), wp.data.eq(host.w_data),
-                                 wp.en.eq(host.w_en & h_elem & ~busy & (e_field == fi) & (e_lane == lane))]
+        for lane, (mem, wp, rp, data_r) in enumerate(self.elem_state_mems):
+            fi = 0                          # field 0: a
+            with m.If(~busy):               # the element lane's read port, the host's while idle
+                m.d.comb += rp.addr.eq(e_pos)
+            elem_read.append((fi, lane, data_r))
+            if wp is None:                  # no a-state in the pipeline: the host still loads a
+                wp = mem.write_port()
+                m.d.comb += [wp.addr.eq(e_pos), wp.data.eq(host.w_data),
+                             wp.en.eq(host.w_en & h_elem & ~busy & (e_field == fi) & (e_lane == lane))]
         # (element state write ports: the pipeline drives them while busy, the host while idle)
         self._host_elem_writes(m, busy, host, h_elem, e_field, e_lane, e_pos)
 
@@ -651,14 +657,13 @@ class Core(wiring.Component):
 
     def _host_elem_writes(self, m, busy, host, h_elem, e_field, e_lane, e_pos):
         """Element state write ports: the pipeline while busy, the host while idle."""
-        for lane, (A_mem, FP_mem, A_wp, FP_wp, *_) in enumerate(self.elem_state_mems):
-            for fi, wp in enumerate((A_wp, FP_wp)):
-                if wp is None:
-                    continue
-                # the pipeline's assignments were made first in comb; override them when idle
-                hit = host.w_en & h_elem & (e_field == fi) & (e_lane == lane)
-                with m.If(~busy):
-                    m.d.comb += [wp.addr.eq(e_pos), wp.data.eq(host.w_data), wp.en.eq(hit)]
+        for lane, (_, wp, *_) in enumerate(self.elem_state_mems):
+            if wp is None:
+                continue
+            # the pipeline's assignments were made first in comb; override them when idle
+            hit = host.w_en & h_elem & (e_field == 0) & (e_lane == lane)
+            with m.If(~busy):
+                m.d.comb += [wp.addr.eq(e_pos), wp.data.eq(host.w_data), wp.en.eq(hit)]
 
     @staticmethod
     def _rom(m, add_mem, name, fields, depth, addr):

@@ -90,7 +90,7 @@ def bench_fpga(sys: System, preset: str = "narrow", lanes: int = 1, node_lanes: 
     core_dir, man, drv = emit_core(bt, lanes, node_lanes)
     say(f"{simulator}: {steps} steps of the core in {core_dir}")
     st = bt.initial_state()
-    out = run_job(simulator, core_dir, drv, drv.load_words(st.X, st.U, st.A, st.FP, 0), [steps])
+    out = run_job(simulator, core_dir, drv, drv.load_words(st.X, st.U, st.A, 0), [steps])
     for _ in range(steps):
         bt.step(st)
     X, U, A = out["frames"][0][:3]

@@ -88,7 +88,7 @@ def simulate_hdl(sys: System, simulator: str, preset="wide", steps=None, every=N
     runs = np.diff(np.concatenate([[0], at])).astype(int)
     st = bt.initial_state()
     runs = [int(n) for n in runs if n > 0]
-    out = run_job(simulator, core_dir, drv, drv.load_words(st.X, st.U, st.A, st.FP, 0), runs)
+    out = run_job(simulator, core_dir, drv, drv.load_words(st.X, st.U, st.A, 0), runs)
     stepper = HardwareStepper(BitTrue(sys, preset, formats=bt.formats), _Replay(out["frames"], out["cycles"]), preset)
     run = simulate(sys, steps=steps, every=every, progress=progress, stepper=stepper)
     info = {"cycles_per_step": man["cycles_per_step"]["value"], "measured": out["cycles"],

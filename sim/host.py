@@ -21,14 +21,15 @@ class HostDriver:
     def __init__(self, dim: int, node_addrs, elem_addrs, cycles_per_step: int, bus=None):
         self.dim, self.bus, self.cycles_per_step = int(dim), bus, int(cycles_per_step)
         self.node_addrs = [np.asarray(a, np.int64) for a in node_addrs]      # 2D fields: x_k, u_k
-        self.elem_addrs = [np.asarray(a, np.int64) for a in elem_addrs]      # a [, |T_prev|]
-        self.has_fp = len(self.elem_addrs) > 1
+        self.elem_addrs = [np.asarray(a, np.int64) for a in elem_addrs]      # element fields: a only
+        if len(self.elem_addrs) != 1:
+            raise ValueError(f"one element state field (a), got {len(self.elem_addrs)}")
 
     @classmethod
     def for_config(cls, cfg, cycles_per_step: int, bus=None) -> "HostDriver":
         n, e = np.arange(cfg.n_nodes), np.arange(cfg.n_elements)
-        elem = [cfg.elem_addr(0, e)] + ([cfg.elem_addr(1, e)] if cfg.params.damper is not None else [])
-        return cls(cfg.dim, [cfg.node_addr(f, n) for f in range(2 * cfg.dim)], elem, cycles_per_step, bus)
+        return cls(cfg.dim, [cfg.node_addr(f, n) for f in range(2 * cfg.dim)], [cfg.elem_addr(0, e)],
+                   cycles_per_step, bus)
 
     def to_job(self) -> dict:
         return {"dim": self.dim, "cycles_per_step": self.cycles_per_step,
@@ -39,23 +40,20 @@ class HostDriver:
         return cls(int(job["dim"]), list(job["node_addrs"]), list(job["elem_addrs"]), int(job["cycles_per_step"]), bus)
 
     # ---- commands
-    def load_words(self, X, U, A, FP=None, step: int = 0) -> list[tuple[int, int]]:
+    def load_words(self, X, U, A, step: int = 0) -> list[tuple[int, int]]:
         """The (address, data) writes that load a whole state (raw integers) and the step counter."""
         words = []
         for f, vals in enumerate(list(X) + list(U)):
             words += [(int(a), int(v)) for a, v in zip(self.node_addrs[f], np.asarray(vals))]
         words += [(int(a), int(v)) for a, v in zip(self.elem_addrs[0], np.asarray(A))]
-        if self.has_fp:
-            fp = np.zeros(len(self.elem_addrs[1]), np.int64) if FP is None else np.asarray(FP)
-            words += [(int(a), int(v)) for a, v in zip(self.elem_addrs[1], fp)]
         return words + [(REG_STEP, int(step)), (REG_SAT, 0)]      # the last write clears the saturations
 
     async def write_words(self, words):
         for addr, data in words:
             await self.bus.write(int(addr), int(data))
 
-    async def load(self, X, U, A, FP=None, step: int = 0):
-        await self.write_words(self.load_words(X, U, A, FP, step))
+    async def load(self, X, U, A, step: int = 0):
+        await self.write_words(self.load_words(X, U, A, step))
 
     async def run(self, steps: int) -> int:
         """Run `steps` steps and wait until the core is idle; returns the cycles the run took."""
@@ -76,16 +74,15 @@ class HostDriver:
         return await self.bus.read_many(self.read_addrs)
 
     def decode(self, vals):
-        """Raw read-back words -> (X list, U list, A, FP or None, step, saturation count, flags)."""
+        """Raw read-back words -> (X list, U list, A, step, saturation count, flags)."""
         D = self.dim
         N, E = len(self.node_addrs[0]), len(self.elem_addrs[0])
         s = np.array([to_signed32(v) for v in vals], np.int64)
         nodes = [s[f * N:(f + 1) * N] for f in range(2 * D)]
         off = 2 * D * N
         A = s[off:off + E]
-        FP = s[off + E:off + 2 * E] if self.has_fp else None
         step, sat, flags = (int(v) & 0xFFFFFFFF for v in vals[-3:])
-        return nodes[:D], nodes[D:], A, FP, step, sat, flags
+        return nodes[:D], nodes[D:], A, step, sat, flags
 
     async def read_state(self):
         return self.decode(await self.read_raw())

@@ -110,15 +110,13 @@ class HardwareStepper:
 
     def initial_state(self):
         st = self.bt.initial_state()
-        self.hw.call("load", st.X, st.U, st.A, st.FP, 0)
+        self.hw.call("load", st.X, st.U, st.A, 0)
         return st
 
     def advance(self, st, n):
         self.cycles.append((n, self.hw.call("run", n)))
-        X, U, A, FP, step, sat, _ = self.hw.call("read_state")
+        X, U, A, step, sat, _ = self.hw.call("read_state")
         st.X, st.U, st.A = X, U, A
-        if FP is not None:
-            st.FP = FP
         st.step += n
         if step != st.step:
             raise RuntimeError(f"the core's step counter reads {step}, expected {st.step}")

@@ -92,8 +92,7 @@ def test_one_step_error_of_the_wide_preset_is_small(name):
         if check:
             X = [fm["x"].from_float(un.length(st.x[:, k])) for k in range(sys_.dim)]
             U = [fm["u"].from_float(un.velocity(st.v[:, k])) for k in range(sys_.dim)]
-            new = step(bt.ar, HwState(X, U, fm["a"].from_float(st.a), fm["force"].from_float(un.force(st.f_prev)),
-                                      st.step), bt.params)
+            new = step(bt.ar, HwState(X, U, fm["a"].from_float(st.a), st.step), bt.params)
         gold.step(st)
         vmax = max(vmax, np.abs(st.v).max())
         if check:
@@ -173,9 +172,11 @@ def test_scene_can_override_a_format(tmp_path):
     p = tmp_path / "s.toml"
     p.write_text(text + '\n[formats]\nx = "SQ(3, 20)"\n')
     sys_ = compile_scene(load_scene(p))
-    bt = BitTrue(sys_, "wide", range_steps=10)
+    # the whole run's range analysis: a shorter one never sees the press, and its load constant would not
+    # fit the force accumulator (refused, tests/test_model_v2.py)
+    bt = BitTrue(sys_, "wide")
     assert str(bt.formats["x"]) == "SQ(3, 20)"
-    assert str(BitTrue(compile_scene(load_scene("press-2d-viscoelastic")), "wide", range_steps=10).formats["x"]) != "SQ(3, 20)"
+    assert str(BitTrue(compile_scene(load_scene("press-2d-viscoelastic")), "wide").formats["x"]) != "SQ(3, 20)"
     p.write_text(text + '\n[formats]\nxx = "SQ(3, 20)"\n')
     with pytest.raises(ValueError, match="unknown quantity 'xx'"):
         load_scene(p)

@@ -33,9 +33,9 @@ def check(bt, simulator, start, frames, reset_after=0, lanes=1, node_lanes=1):
         assert active_collision_pairs(bt, st) > 0, f"no contact at step {start}"
     bt.sat.clear()
     core_dir, man, drv = emit_core(bt, lanes, node_lanes)
-    out = run_job(simulator, core_dir, drv, drv.load_words(st.X, st.U, st.A, st.FP, st.step), frames,
+    out = run_job(simulator, core_dir, drv, drv.load_words(st.X, st.U, st.A, st.step), frames,
                   reset_after=reset_after, timeout_s=1200)
-    for n, (X, U, A, FP, step, sat, _), cycles in zip(frames, out["frames"], out["cycles"]):
+    for n, (X, U, A, step, sat, _), cycles in zip(frames, out["frames"], out["cycles"]):
         for _ in range(n):
             bt.step(st)
         assert step == st.step
@@ -43,8 +43,6 @@ def check(bt, simulator, start, frames, reset_after=0, lanes=1, node_lanes=1):
             assert np.array_equal(X[k], st.X[k]), f"{simulator}: x{k} differs at step {st.step}"
             assert np.array_equal(U[k], st.U[k]), f"{simulator}: u{k} differs at step {st.step}"
         assert np.array_equal(A, st.A), f"{simulator}: a differs at step {st.step}"
-        if FP is not None:
-            assert np.array_equal(FP, st.FP)
         assert sat == bt.sat.total, (sat, dict(bt.sat))
         assert cycles == n * man["cycles_per_step"]["value"]
     return out

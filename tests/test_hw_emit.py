@@ -53,9 +53,9 @@ def test_specialisation_leaves_out_what_a_scene_does_not_need(emitted):
     assert {"a_state", "damper_tables"} <= _units(visco)[1]                   # a Voigt element: no a, no table
     assert "k1_multiplier" in _units(plastic)[1]                              # k1 = 0: no multiplier
     assert {"loads", "damper_tables"} <= _units(grav)[1] and "gravity" in _units(grav)[0]
-    # what is left out is really not there: fewer memories, no damper module, fewer bits
-    assert not any("damper" in m for m in visco["verilog_modules"])
-    assert any("damper" in m for m in rheo["verilog_modules"])
+    # what is left out is really not there: fewer memories, no damper table (Phi, Psi) module, fewer bits
+    assert not any("inverse_" in m for m in visco["verilog_modules"])
+    assert all(any(f"inverse_{t}" in m for m in rheo["verilog_modules"]) for t in ("phi", "psi"))
     assert visco["memory_bits"] < rheo["memory_bits"]
     assert grav["memory_bits"] < visco["memory_bits"]
 
@@ -98,7 +98,7 @@ def test_full_featured_3d_build_has_every_unit_even_with_friction_that_never_sli
     from sim.cli import _load_system
     base = dataclasses.replace(_load_system("gravity-3d-linear"), n_steps=20)
     bt = BitTrue(emit.full_featured(base), "narrow")
-    assert {"finv", "cinv2", "tinv2", "damper"} <= set(bt.ar.units)
+    assert {"finv", "cinv2", "tinv2", "phi", "psi"} <= set(bt.ar.units)
     assert bt.formats["finv"].width == bt.formats.preset.operand          # an operand like any other
     timing = schedule(CoreConfig.of(bt))
     assert timing["cycles_per_step"] > base.n_elements
