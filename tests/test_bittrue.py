@@ -12,6 +12,7 @@ from golden.model import simulate
 from golden.scene import builtin_names, compile_scene, load_scene
 from hw.bittrue import BitTrue, simulate_fixed
 from hw.fixed import SQ, UQ, Saturations, add, mul, shift_round
+from hw.formats import FormatError
 
 from conftest import bittrue as cached_bittrue, system
 
@@ -192,7 +193,12 @@ def test_runaway_saturations_stop_the_run(tmp_path):
     bt_gentle = BitTrue(gentle, "narrow", range_steps=gentle.n_steps)
     text = (ROOT / "golden" / "scenes" / "press-2d-viscoelastic.toml").read_text()
     p = tmp_path / "hard.toml"
+    # 1000x: the load constant itself does not fit the force accumulator: refused before any step
     p.write_text(text.replace("force = [0.0, -0.05]", "force = [0.0, -50.0]"))
+    with pytest.raises(FormatError, match="load saturates"):
+        BitTrue(compile_scene(load_scene(p)), "narrow", formats=bt_gentle.formats)
+    # 40x: the load fits, what it does to the object does not
+    p.write_text(text.replace("force = [0.0, -0.05]", "force = [0.0, -2.0]"))
     hard = compile_scene(load_scene(p))
     bt_hard = BitTrue(hard, "narrow", formats=bt_gentle.formats)
     with pytest.raises(SimulationDiverged, match="runaway saturations"):
