@@ -181,6 +181,7 @@ class FixedArith(_ArrayArith):
         self.sat = sat if sat is not None else Saturations()                 # run time (the hardware counts)
         self.const_sat = const_sat if const_sat is not None else Saturations()   # constants (compile time)
         self.lost = lost if lost is not None else Saturations()     # constants that round to zero
+        self._magnitude = {}      # quantity -> [sum |value| converted, sum |value| rounded to zero]
         self._consts = {}
 
     def shape(self, q) -> Shape:
@@ -195,17 +196,22 @@ class FixedArith(_ArrayArith):
             self._consts[key] = V(self.convert_constant(q, value), q)
         return self._consts[key]
 
-    LOST_FRACTION = 1e-6      # a value this much below its quantity's largest may round to zero unremarked
+    LOST_FRACTION = 0.01      # a quantity whose values lose this much of their magnitude to zero is lost
 
     def convert_constant(self, q, value) -> np.ndarray:
-        """A constant or initial state in q's format; saturations and values that round to zero (nonzero
-        values above LOST_FRACTION of the largest) are counted in const_sat and lost."""
+        """A constant or initial state in q's format. Saturations count in const_sat; values that round to
+        zero count in `lost` once they carry more than LOST_FRACTION of the magnitude of everything
+        converted into q (an object's coordinates all at the origin, a load that vanishes; a few tiny
+        values below half an LSB are ordinary rounding)."""
         raw = self.shape(q).from_float(value, self.const_sat, q)
         v = np.abs(np.asarray(value, float))
-        if v.size and np.any(raw == 0):
-            n = int(np.count_nonzero((raw == 0) & (v > self.LOST_FRACTION * float(v.max()))))
-            if n:
-                self.lost.add(q, n)
+        tot = self._magnitude.setdefault(q, [0.0, 0.0])
+        tot[0] += float(v.sum())
+        tot[1] += float(v[np.asarray(raw == 0)].sum()) if v.ndim else (float(v) if raw == 0 else 0.0)
+        if tot[1] > self.LOST_FRACTION * tot[0]:
+            self.lost[q] = max(self.lost[q], int(np.count_nonzero((raw == 0) & (v > 0))))
+        elif q in self.lost:
+            del self.lost[q]
         return raw
 
     def state(self, q, raw):
