@@ -93,7 +93,8 @@ class State:
         return cls(component_major(sys.x0), component_major(sys.v0), sys.a0.copy())
 
     def copy(self) -> "State":
-        return State(component_major(self.x), component_major(self.v), self.a.copy(), self.step)
+        """An independent state (component_major alone returns its argument when it is already so stored)."""
+        return State(component_major(self.x.copy()), component_major(self.v.copy()), self.a.copy(), self.step)
 
 
 class Golden:

@@ -8,7 +8,12 @@ The FPGA (`bench_fpga`): cycles per step measured by running the emitted Verilog
 (Verilator or Icarus, through cocotb) and checked bit for bit against the bit-true model; the achieved
 Fmax from place and route (`sim/synth.py`, cached next to the core's build by the Verilog's hash), or a
 clock the user states; modelled steps/s = Fmax / cycles per step. The golden model's steps/s on the same
-scene are measured in the same run, on this machine, for the ratio.
+scene are measured in the same run, on this machine, for the ratio; so are the compiled cpu backend's
+(`sim/cpu.py`), the yardstick a user would pick instead.
+
+The cpu backend (`bench_cpu`, `compare_cpu`): the golden model, the cpu backend at 1 and 2 threads and,
+on the benchmark square, the hand-vectorised C loop of bench/square.c, all timed on the same trajectory
+segment (the damper's solve costs more as the square creeps).
 """
 from __future__ import annotations
 
@@ -56,6 +61,86 @@ def _timed(stepper, st, sys: System, min_seconds: float, **labels) -> dict:
             break
     return dict(**labels, elements=sys.n_elements, nodes=sys.n_nodes, steps=steps, seconds=el,
                 steps_per_s=steps / el, element_updates_per_s=steps * sys.n_elements / el)
+
+
+def _segment(stepper, sys: System, steps: int, min_seconds: float) -> dict:
+    """Steps/s over one trajectory segment: `steps` steps after 3 warm-up steps from the initial state, run
+    again from the start until min_seconds have passed (so that backends of different speeds are timed on
+    the same states: the damper's solve costs more as elements creep)."""
+    runs, el = 0, 0.0
+    while True:
+        st = stepper.initial_state() if hasattr(stepper, "initial_state") else State.initial(sys)
+        run_steps = stepper.advance if hasattr(stepper, "advance") else (
+            lambda s, n: [stepper.step(s) for _ in range(n)])
+        run_steps(st, 3)                           # warm-up: compilation, caches
+        t0 = time.perf_counter()
+        run_steps(st, steps)
+        el += time.perf_counter() - t0
+        runs += 1
+        if el >= min_seconds:
+            return dict(steps=steps * runs, seconds=el, steps_per_s=steps * runs / el)
+
+
+def compare_cpu(sys: System, min_seconds: float = 1.0, threads=(1, 2), c_reference: bool = False) -> dict:
+    """The golden model and the cpu backend (each thread count) on the same trajectory segment, and the
+    hand-vectorised C loop of bench/square.c when asked (the benchmark square only)."""
+    from sim.cpu import Cpu
+    g = _timed(Golden(sys), State.initial(sys), sys, min_seconds)
+    steps = g["steps"]
+    row = dict(elements=sys.n_elements, nodes=sys.n_nodes, segment_steps=steps + 3, golden_steps_per_s=g["steps_per_s"])
+    best = None
+    for n in threads:
+        stepper = Cpu(sys, threads=n)
+        row[f"cpu_{stepper.threads}_threads_steps_per_s"] = r = _segment(stepper, sys, steps, min_seconds)["steps_per_s"]
+        if best is None or r > best[1]:
+            best = (stepper.threads, r)
+    auto = Cpu(sys).threads
+    row.update(cpu_threads=auto, cpu_steps_per_s=row.get(f"cpu_{auto}_threads_steps_per_s", best[1]),
+               fastest_threads=best[0])
+    row["cpu_ratio_to_golden"] = row["cpu_steps_per_s"] / row["golden_steps_per_s"]
+    if c_reference:
+        row.update(_c_reference(sys, steps, min_seconds, row["cpu_steps_per_s"]))
+    return row
+
+
+def _c_reference(sys: System, steps: int, min_seconds: float, cpu_steps_per_s: float) -> dict:
+    """bench/square.c on the same segment, its result checked against the cpu backend first."""
+    import importlib.util
+    from pathlib import Path
+    from sim.cpu import Cpu
+    path = Path(__file__).resolve().parents[1] / "bench" / "square.py"
+    if not path.is_file():
+        return dict(c_reference=f"not available: {path} is not in this installation (a source checkout has it)")
+    spec = importlib.util.spec_from_file_location("bench_square", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    try:
+        c = mod.CSquare(sys)
+    except mod.Unavailable as exc:
+        return dict(c_reference=f"not available: {exc}")
+    ref, st = Cpu(sys, 1), State.initial(sys)
+    c.advance(steps + 3)
+    ref.advance(st, steps + 3)
+    x, v, a = c.state()
+    size = float(np.ptp(sys.x0, axis=0).max())
+    err = max(float(np.abs(x - st.x).max()) / size, float(np.abs(a - st.a).max()))
+    if not err <= 1e-12:
+        raise RuntimeError(f"bench/square.c differs from the cpu backend by {err:.3g} after {steps + 3} steps")
+
+    class _Stepper:                                   # _segment's interface over the C state
+        def initial_state(self):
+            self.c = mod.CSquare(sys)
+            return State.initial(sys)
+
+        def advance(self, st_, n):
+            self.c.advance(n)
+    r = _segment(_Stepper(), sys, steps, min_seconds)["steps_per_s"]
+    return dict(c_reference_steps_per_s=r, c_reference_max_difference=err, cpu_ratio_to_c_reference=cpu_steps_per_s / r)
+
+
+def bench_cpu(n_elements: int, min_seconds: float = 1.0) -> dict:
+    sys = square_system(n_elements)
+    return dict(backend="cpu", scene=sys.name, **compare_cpu(sys, min_seconds, c_reference=True))
 
 
 def bench_golden(n_elements: int, min_seconds: float = 1.0) -> dict:
@@ -117,9 +202,11 @@ def bench_fpga(sys: System, preset: str = "narrow", lanes: int = 1, node_lanes: 
         source = "stated (--fmax-mhz)"
     row.update(fmax_mhz=fmax_mhz, fmax_source=source, steps_per_s=fmax_mhz * 1e6 / cycles,
                element_updates_per_s=fmax_mhz * 1e6 / cycles * sys.n_elements)
-    say("golden model on the same scene")
-    g = _timed(Golden(sys), State.initial(sys), sys, min_seconds, backend="golden")
-    row.update(golden_steps_per_s=g["steps_per_s"], ratio_to_golden=row["steps_per_s"] / g["steps_per_s"])
+    say("golden model and the cpu backend on the same scene")
+    cmp = compare_cpu(sys, min_seconds)
+    row.update(golden_steps_per_s=cmp["golden_steps_per_s"], ratio_to_golden=row["steps_per_s"] / cmp["golden_steps_per_s"],
+               cpu_steps_per_s=cmp["cpu_steps_per_s"], cpu_threads=cmp["cpu_threads"],
+               ratio_to_cpu=row["steps_per_s"] / cmp["cpu_steps_per_s"])
     return row
 
 
@@ -130,9 +217,13 @@ def run(backend: str, sizes=SIZES, min_seconds: float = 1.0, scene: System | Non
             return [_timed(Golden(scene), State.initial(scene), scene, min_seconds, backend="golden", scene=scene.name)]
         if backend == "fpga":
             return [bench_fpga(scene, min_seconds=min_seconds, **fpga)]
+        if backend == "cpu":
+            return [dict(backend="cpu", scene=scene.name, **compare_cpu(scene, min_seconds))]
         raise ValueError(f"backend '{backend}' benchmarks generated meshes only (no scene)")
     if backend == "golden":
         return [bench_golden(n, min_seconds) for n in sizes]
+    if backend == "cpu":
+        return [bench_cpu(n, min_seconds) for n in sizes]
     if backend == "fpga":
         rows = []
         for n in sizes:
@@ -146,4 +237,4 @@ def run(backend: str, sizes=SIZES, min_seconds: float = 1.0, scene: System | Non
             f["ratio_to_golden"] = f["steps_per_s"] / g["steps_per_s"]
             rows.append(f)
         return rows
-    raise ValueError(f"backend '{backend}' has no benchmark (available: golden, fixed, fpga)")
+    raise ValueError(f"backend '{backend}' has no benchmark (available: golden, cpu, fixed, fpga)")

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 
 DEFAULT_SCENE = "press-2d-rheological"
-BACKENDS = ("golden", "fixed", "amaranth", "icarus", "verilator")
-BENCH_BACKENDS = ("golden", "fixed", "fpga")
+BACKENDS = ("golden", "cpu", "fixed", "amaranth", "icarus", "verilator")
+BENCH_BACKENDS = ("golden", "cpu", "fixed", "fpga")
 PRESETS = ("narrow", "medium", "wide")
 
 
@@ -62,6 +62,9 @@ def _simulate(sys_, backend: str, steps, every, progress=True, preset="wide", la
     with np.errstate(over="ignore", invalid="ignore"):
         if backend == "golden":
             return simulate(sys_, steps=steps, every=every, progress=progress), {}
+        if backend == "cpu":
+            from sim.cpu import Cpu
+            return simulate(sys_, steps=steps, every=every, progress=progress, stepper=Cpu(sys_)), {}
         from hw.bittrue import simulate_fixed
         if backend == "amaranth":
             from sim.hwsim import simulate_amaranth
@@ -213,8 +216,19 @@ def cmd_bench(args) -> int:
                   f"{r['simulator_cycles_per_s']:.0f} cycles/s, host interface included)")
             print(f"  Fmax {r['fmax_mhz']:.1f} MHz ({r['fmax_source']}) -> {r['steps_per_s']:.0f} steps/s, "
                   f"{r['element_updates_per_s']:.3e} element-updates/s")
-            print(f"  golden model on this machine: {r['golden_steps_per_s']:.1f} steps/s; "
-                  f"FPGA / golden = {r['ratio_to_golden']:.1f}x")
+            print(f"  on this machine, same run: cpu backend ({r['cpu_threads']} thread(s)) "
+                  f"{r['cpu_steps_per_s']:.1f} steps/s, golden model {r['golden_steps_per_s']:.1f} steps/s; "
+                  f"FPGA / cpu = {r['ratio_to_cpu']:.2f}x, FPGA / golden = {r['ratio_to_golden']:.1f}x")
+    elif args.backend == "cpu":
+        print(f"{'elements':>9} {'nodes':>8} {'golden':>10} {'cpu 1 thr':>10} {'cpu 2 thr':>10} {'cpu/golden':>10} "
+              f"{'C loop':>10} {'cpu/C':>6}   (steps/s, same trajectory segment)")
+        for r in rows:
+            c = r.get("c_reference_steps_per_s")
+            print(f"{r['elements']:9d} {r['nodes']:8d} {r['golden_steps_per_s']:10.1f} "
+                  f"{r.get('cpu_1_threads_steps_per_s', float('nan')):10.1f} "
+                  f"{r.get('cpu_2_threads_steps_per_s', float('nan')):10.1f} {r['cpu_ratio_to_golden']:9.1f}x "
+                  + (f"{c:10.1f} {r['cpu_ratio_to_c_reference']:5.2f}x" if c else f"{'-':>10} {'-':>6}")
+                  + f"   chosen: {r['cpu_threads']} thread(s)")
     else:
         print(f"{'elements':>9} {'nodes':>8} {'steps/s':>10} {'element-updates/s':>18}")
         for r in rows:
@@ -406,7 +420,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="print JSON")
     s.add_argument("--sizes", type=_positive_int, nargs="+",
                    help="approximate element counts of generated squares (default: 1000 10000 100000; fpga: 10000)")
-    s.add_argument("--scene", help="measure this scene instead of generated squares (golden, fpga)")
+    s.add_argument("--scene", help="measure this scene instead of generated squares (golden, cpu, fpga)")
     s.add_argument("--seconds", type=_positive_float, default=1.0, help="minimum measuring time per size (default 1)")
     s.add_argument("--preset", choices=PRESETS, help="fpga: number-format preset (default narrow)")
     _lane_args(s)

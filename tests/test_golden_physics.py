@@ -295,3 +295,15 @@ def test_linear_damper_keeps_sinking_under_gravity():
 def test_nonlinear_damper_stops_sinking_under_gravity():
     first, last = _sink_rates("gravity-2d-nonlinear")
     assert first > 0 and abs(last) < 0.01 * first, (first, last)
+
+
+def test_state_copy_is_independent():
+    """State.copy shares no buffer with its original (a stepped original must leave the copy alone)."""
+    from golden.model import Golden, State
+    from conftest import system
+    sys_ = system("gravity-2d-linear")
+    st = State.initial(sys_)
+    cp = st.copy()
+    Golden(sys_).step(st)
+    assert not np.shares_memory(cp.x, st.x) and not np.shares_memory(cp.v, st.v)
+    assert np.array_equal(cp.x, sys_.x0) and not np.array_equal(st.v, cp.v)
