@@ -813,6 +813,8 @@ def _run(sys: System, dt: float, n: int, check, check_every: int, seed: int, per
         while st.step < n:
             stop = min(n, st.step + check_every)
             try:
+                if hasattr(g, "advance"):              # steppers that run many steps in one call
+                    g.advance(st, stop - st.step)
                 while st.step < stop:
                     g.step(st)
                 x, v, a = (st.x, st.v, st.a) if model is None else g.frame(st)
@@ -869,10 +871,12 @@ def trial(sys: System, dt: float, ref: Reference | None = None, steps: int | Non
 
 def measure(sys: System, lo: float | None = None, hi: float | None = None, rel_tol: float = 0.05,
             steps: int | None = None, max_steps: int = MAX_STEPS, pred: dict | None = None,
-            compare: bool | None = None, verbose: bool = False, trial_fn=None) -> dict:
+            compare: bool | None = None, verbose: bool = False, trial_fn=None, model=None) -> dict:
     """Measured largest stable dt by bisection on real runs of the golden model, or of another model:
     trial_fn(sys, dt, ref, steps=, max_steps=) -> (stable, reason or None, steps run) replaces trial
-    (hw.stability_fixed.trial_fixed: the bit-true model); the reference run stays a golden run.
+    (hw.stability_fixed.trial_fixed: the bit-true model); the reference run stays a golden run. `model`
+    (see _run) steps both the reference and the trials instead of golden.model.Golden: the cpu backend
+    (sim/cpu.py stability_model), the same physics compiled.
 
     compare: judge the trials against a reference run too (see trial); by default only when the scene
     has something that moves it (loads, gravity or an initial velocity). Without, a run that only relaxes
@@ -899,13 +903,15 @@ def measure(sys: System, lo: float | None = None, hi: float | None = None, rel_t
     ref = None
     while compare and ref is None:
         try:
-            ref = reference(sys, dt_ref, min(span, 4 * max_steps * dt_ref))
+            ref = reference(sys, dt_ref, min(span, 4 * max_steps * dt_ref), model=model)
         except RuntimeError:
             if dt_ref < 0.01 * base:
                 raise
             dt_ref *= 0.5                              # the prediction was far too high: a smaller yardstick
     trials = []
-    trial_fn = trial if trial_fn is None else trial_fn
+    if trial_fn is None:
+        def trial_fn(sys_, dt, ref_, **kw):
+            return trial(sys_, dt, ref_, model=model, **kw)
 
     def run(dt):
         ok, why, n = trial_fn(sys, dt, ref, steps=steps, max_steps=max_steps)

@@ -338,7 +338,7 @@ def cmd_report(args) -> int:
             print(f"  discretisation {label:4s}: " + (f"max {d['max_relative']:.2e} of the object size"
                   if "max_relative" in d else "diverged"))
     rt, fp = summary["run_time_per_simulated_second"], summary["fpga"]
-    print(f"  wall seconds per simulated second: golden {rt['golden']:.3g}" + "".join(
+    print(f"  wall seconds per simulated second: golden {rt['golden']:.3g}, cpu backend {rt['cpu']:.3g}" + "".join(
         f", bit-true {p} {rt['fixed-' + p]:.3g}" for p in fp["cycles_per_step"]))
     for p, c in fp["cycles_per_step"].items():
         print(f"  FPGA {p:7s}: {c} cycles/step at {fp['clock_mhz']:g} MHz ({fp['clock_source']}): "

@@ -130,7 +130,7 @@ def _twins(fn):
     par = types.FunctionType(fn.__code__, fn.__globals__, fn.__name__ + "_parallel", fn.__defaults__,
                              fn.__closure__)
     par.__qualname__ = fn.__qualname__ + "_parallel"
-    return _jit()(fn), _jit(parallel=True)(par)
+    return _jit(inline="always")(fn), _jit(parallel=True)(par)
 
 
 # The element pass mirrors golden's element_forces: one pass per axis for d, l^2 and d . (v_j - v_i); one
@@ -253,7 +253,7 @@ def _newton(n, y, c1, B, f1, f2, c_max, G_lo, G_hi, t):
     raise ArithmeticError("damper solve did not converge")
 
 
-@_jit()
+@_jit(inline="always")
 def _solved(n, a, wk):
     """T/l and adot of the n solved elements from their T magnitude t."""
     sv, l2, dd, Y, Tl, adot = wk.solve, wk.l2, wk.dd, wk.Y, wk.Tl, wk.adot
@@ -270,10 +270,10 @@ _edges_serial, _edges_parallel = _twins(_edges)
 _rigid_damper_serial, _rigid_damper_parallel = _twins(_rigid_damper)
 _linear_piece_serial, _linear_piece_parallel = _twins(_linear_piece)
 _newton_serial, _newton_parallel = _twins(_newton)
-_finish = _jit()(_finish)
+_finish = _jit(inline="always")(_finish)
 
 
-@_jit()
+@_jit(inline="always")
 def _scatter(ii, jj, wk, Ft):
     """Golden's scatter: +T/l d to start nodes, -T/l d to end nodes (Ft component-major)."""
     d, Tl = wk.d, wk.Tl
@@ -309,43 +309,59 @@ def _scatter_parallel(ii, jj, wk, Ft, Fpart):
 
 
 # ---------------------------------------------------------------- facets (golden/topology.py)
+# Per-pair helpers write into scratch vectors (no temporary arrays: an allocation per pair costs more
+# than the pair) and are inlined.
 
-@_jit()
-def _normal(x, fn, out):
-    """facet_frame: the unit normal of the facet with nodes fn into out (D,)."""
-    D = x.shape[1]
-    if D == 2:
-        u0, u1 = x[fn[1], 0] - x[fn[0], 0], x[fn[1], 1] - x[fn[0], 1]
-        out[0], out[1] = -u1, u0
+@_jit(inline="always")
+def _diff(x, a, b, out):
+    """out = x[a] - x[b]."""
+    for k in range(x.shape[1]):
+        out[k] = x[a, k] - x[b, k]
+
+
+@_jit(inline="always")
+def _dot(u, w):
+    s = 0.0
+    for k in range(len(u)):
+        s += u[k] * w[k]
+    return s
+
+
+@_jit(inline="always")
+def _normal(x, fn, e1, e2, out):
+    """facet_frame: the unit normal of the facet with nodes fn into out (D,); e1, e2 scratch."""
+    _diff(x, fn[1], fn[0], e1)
+    if x.shape[1] == 2:
+        out[0], out[1] = -e1[1], e1[0]
     else:
-        e1 = x[fn[1]] - x[fn[0]]
-        e2 = x[fn[2]] - x[fn[0]]
+        _diff(x, fn[2], fn[0], e2)
         out[0] = e1[1] * e2[2] - e1[2] * e2[1]
         out[1] = e1[2] * e2[0] - e1[0] * e2[2]
         out[2] = e1[0] * e2[1] - e1[1] * e2[0]
-    norm = np.sqrt(np.sum(out * out))
-    for k in range(D):
+    norm = np.sqrt(_dot(out, out))
+    for k in range(len(out)):
         out[k] /= norm
 
 
-@_jit()
-def _foot(x, p, fn, w):
+@_jit(inline="always")
+def _foot(x, p, fn, e1, e2, r, w):
     """foot_weights: barycentric weights of the foot of node p on the facet fn into w (D,), unclipped."""
+    _diff(x, fn[1], fn[0], e1)
+    _diff(x, p, fn[0], r)
     if x.shape[1] == 2:
-        u = x[fn[1]] - x[fn[0]]
-        t = np.sum((x[p] - x[fn[0]]) * u) / np.sum(u * u)
+        t = _dot(r, e1) / _dot(e1, e1)
         w[0], w[1] = 1.0 - t, t
         return
-    e1, e2, r = x[fn[1]] - x[fn[0]], x[fn[2]] - x[fn[0]], x[p] - x[fn[0]]
-    d11, d12, d22 = np.sum(e1 * e1), np.sum(e1 * e2), np.sum(e2 * e2)
-    r1, r2 = np.sum(r * e1), np.sum(r * e2)
+    _diff(x, fn[2], fn[0], e2)
+    d11, d12, d22 = _dot(e1, e1), _dot(e1, e2), _dot(e2, e2)
+    r1, r2 = _dot(r, e1), _dot(r, e2)
     den = d11 * d22 - d12 * d12
     w1 = (d22 * r1 - d12 * r2) / den
     w2 = (d11 * r2 - d12 * r1) / den
     w[0], w[1], w[2] = 1.0 - w1 - w2, w1, w2
 
 
-@_jit()
+@_jit(inline="always")
 def _pair_force(out, p, fn, w, f):
     """apply_pair_forces: node p gets f (D,), the facet's nodes get -w f."""
     for k in range(out.shape[1]):
@@ -354,7 +370,7 @@ def _pair_force(out, p, fn, w, f):
             out[fn[m], k] += -w[m] * f[k]
 
 
-@_jit()
+@_jit(inline="always")
 def _relative_velocity(v, p, fn, w, out):
     for k in range(v.shape[1]):
         s = 0.0
@@ -363,25 +379,30 @@ def _relative_velocity(v, p, fn, w, out):
         out[k] = v[p, k] - s
 
 
-@_jit()
+@_jit(inline="always")
 def _topology(x, v, tp, out):
     D = x.shape[1]
     _, pairs, K, C, eps = tp
-    n, w, vrel, f = np.empty(D), np.empty(D), np.empty(D), np.empty(D)
+    sc = np.empty((7, D))
+    n, w, vrel, f, e1, e2, r = sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6]
+    fn = np.empty(D, pairs.dtype)
     for q in range(len(pairs)):
-        p, fn = pairs[q, 0], pairs[q, 1:]
-        _normal(x, fn, n)
-        d = np.sum((x[p] - x[fn[0]]) * n)
+        p = pairs[q, 0]
+        for m in range(D):
+            fn[m] = pairs[q, m + 1]
+        _normal(x, fn, e1, e2, n)
+        _diff(x, p, fn[0], r)
+        d = _dot(r, n)
         if not d <= eps:
             continue
-        _foot(x, p, fn, w)
+        _foot(x, p, fn, e1, e2, r, w)
         rest = 0.0                          # clip_weights
         for m in range(1, D):
             w[m] = min(max(w[m], 0.0), 1.0)
             rest += w[m]
         w[0] = 1.0 - rest
         _relative_velocity(v, p, fn, w, vrel)
-        mag = -K * (d - eps) - C * np.sum(vrel * n)
+        mag = -K * (d - eps) - C * _dot(vrel, n)
         for k in range(D):
             f[k] = mag * n[k]
         _pair_force(out, p, fn, w, f)
@@ -389,16 +410,16 @@ def _topology(x, v, tp, out):
 
 # ---------------------------------------------------------------- contact (golden/contact.py)
 
-@_jit()
+@_jit(inline="always")
 def _friction(vt, N, mu, k_f, f):
     """friction: add the regularised Coulomb force for the slip velocity vt (D,) to f."""
-    speed = np.sqrt(np.sum(vt * vt))
+    speed = np.sqrt(_dot(vt, vt))
     gain = min(mu * N / max(speed, 1e-300), k_f)
     for k in range(len(vt)):
         f[k] += -gain * vt[k]
 
 
-@_jit()
+@_jit(inline="always")
 def _floor(x, v, fl, out):
     D = x.shape[1]
     axis = D - 1
@@ -410,15 +431,16 @@ def _floor(x, v, fl, out):
         N = max(0.0, -fl.K * d - fl.C * v[p, axis])
         out[p, axis] += N
         if fl.mu > 0.0:
-            vt[:] = v[p]
+            for k in range(D):
+                vt[k] = v[p, k]
+                f[k] = 0.0
             vt[axis] = 0.0
-            f[:] = 0.0
             _friction(vt, N, fl.mu, fl.k_f, f)
             for k in range(D):
                 out[p, k] += f[k]
 
 
-@_jit()
+@_jit(inline="always")
 def _search(sorted_keys, key, right):
     """np.searchsorted(sorted_keys, key, 'right' if right else 'left')."""
     lo, hi = 0, len(sorted_keys)
@@ -431,7 +453,7 @@ def _search(sorted_keys, key, right):
     return lo
 
 
-@_jit()
+@_jit(inline="always")
 def _excluded(nk, n_nodes, p, fn):
     """Collision._excluded: p is a vertex of the facet or joined to one of them by an element (nk: the
     sorted keys a * n_nodes + b of joined pairs)."""
@@ -446,27 +468,30 @@ def _excluded(nk, n_nodes, p, fn):
     return False
 
 
-@_jit()
-def _contact(x, v, K, C, threshold, mu, k_f, p, fn, out, n, w, vrel, f):
-    """The narrow phase of Collision.forces for the candidate (vertex p, facet fn)."""
+@_jit(inline="always")
+def _contact(x, v, K, C, threshold, mu, k_f, p, fn, out, n, w, vrel, f, e1, e2, r):
+    """The narrow phase of Collision.forces for the candidate (vertex p, facet fn); n .. r: scratch (D,)."""
     D = x.shape[1]
-    _normal(x, fn, n)
+    _normal(x, fn, e1, e2, n)
     if D == 2:                              # outward normal
         n[0], n[1] = -n[0], -n[1]
-    d = np.sum((x[p] - x[fn[0]]) * n)
+    _diff(x, p, fn[0], r)
+    d = _dot(r, n)
     if not abs(d) <= threshold:
         return
-    _foot(x, p, fn, w)
+    _foot(x, p, fn, e1, e2, r, w)
     for m in range(D):
         if not w[m] >= 0.0:
             return
     _relative_velocity(v, p, fn, w, vrel)
-    vn = np.sum(vrel * n)
+    vn = _dot(vrel, n)
     N = max(0.0, K * (threshold - d) - C * vn)
     for k in range(D):
         f[k] = N * n[k]
     if mu > 0.0:
-        _friction(vrel - vn * n, N, mu, k_f, f)
+        for k in range(D):
+            e1[k] = vrel[k] - vn * n[k]
+        _friction(e1, N, mu, k_f, f)
     _pair_force(out, p, fn, w, f)
 
 
@@ -509,9 +534,12 @@ def _collisions(x, v, cl, out):
     order = np.argsort(kv, kind="mergesort")
     kv = kv[order]
     base = _cell_keys(cc, stride)
-    n, w, vrel, f = np.empty(D), np.empty(D), np.empty(D), np.empty(D)
+    sc = np.empty((7, D))
+    n, w, vrel, f, e1, e2, r = sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6]
+    fn = np.empty(D, facets.dtype)
     for s in range(S):
-        fn = facets[s]
+        for m in range(D):
+            fn[m] = facets[s, m]
         for o in range(3 ** D):
             key, rest = base[s], o
             for k in range(D):
@@ -520,12 +548,12 @@ def _collisions(x, v, cl, out):
             for q in range(_search(kv, key, False), _search(kv, key, True)):
                 p = vertices[order[q]]
                 if not _excluded(nk, n_nodes, p, fn):
-                    _contact(x, v, K, C, threshold, mu, k_f, p, fn, out, n, w, vrel, f)
+                    _contact(x, v, K, C, threshold, mu, k_f, p, fn, out, n, w, vrel, f, e1, e2, r)
 
 
 # ---------------------------------------------------------------- the step (golden/model.py)
 
-@_jit()
+@_jit(inline="always")
 def _elements_serial(x, v, a, el, wk):
     """Every element's T/l and adot into wk (the passes above)."""
     _edges_serial(x, v, el.i, el.j, wk.d, wk.l2, wk.dd)
@@ -541,7 +569,7 @@ def _elements_serial(x, v, a, el, wk):
         _solved(n, a, wk)
 
 
-@_jit()
+@_jit(inline="always")
 def _elements_parallel(x, v, a, el, wk):
     """The same passes, each loop shared between the threads."""
     _edges_parallel(x, v, el.i, el.j, wk.d, wk.l2, wk.dd)
@@ -560,7 +588,7 @@ def _elements_parallel(x, v, a, el, wk):
         _solved(n, a, wk)
 
 
-@_jit()
+@_jit(inline="always")
 def _forces(xt, vt, a, t, el, tp, fl, cl, ld, parallel, Ft, wk):
     """Golden.forces: the total force into Ft; positions, velocities and forces are component-major (D, N)
     (golden's State layout), seen as (N, D) by the contact terms."""
@@ -689,6 +717,25 @@ class Cpu:
         _forces(xt, vt, st.a, float(t), self.el, self.tp, self.fl, self.cl, self.ld,
                 self.threads > 1, self._Ft, self._wk)
         return self._Ft.T.copy(), self._wk.adot.copy()
+
+
+class _FromState(Cpu):
+    """The cpu backend started from a given state (the stepper protocol of golden.stability's trials)."""
+
+    def __init__(self, sys: System, start: State, threads: int | None = None):
+        super().__init__(sys, threads)
+        self._start = start
+
+    def initial_state(self) -> State:
+        return self._start.copy()
+
+    def frame(self, st: State):
+        return st.x, st.v, st.a
+
+
+def stability_model(sys: System, start: State) -> Cpu:
+    """golden.stability.measure(..., model=stability_model): trials on the cpu backend."""
+    return _FromState(sys, start)
 
 
 def simulate_cpu(sys: System, steps=None, every=None, progress=False, threads=None):

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from golden.model import SimulationDiverged, System, simulate
+from golden.model import SimulationDiverged, State, System, simulate
 
 FRAMES = 100
 
@@ -89,14 +89,24 @@ def build(sys: System, out_dir, presets=("narrow", "medium", "wide"), max_ref_st
         summary["fpga"]["cycles_per_step"][preset] = cycles
         summary["run_time_per_simulated_second"][f"fpga-{preset}"] = cycles / (clock_mhz * 1e6 * sys.dt)
 
+    from sim.cpu import Cpu
+    log("cpu backend (compiled golden physics) at dt")
+    Cpu(sysn).advance(State.initial(sysn), 1)                   # compile (or load the cache) outside the timing
+    cpu = simulate(sysn, every=every, stepper=Cpu(sysn))
+    summary["run_time_per_simulated_second"]["cpu"] = cpu.wall_seconds / T
+    summary["cpu"] = {"max_relative_vs_golden": float(_errors(cpu.x, gold.x, size)[2].max()), "discretisation": {}}
+
     factor_ref = 16 if n * 16 <= max_ref_steps else 4
-    log(f"golden reference at dt / {factor_ref}")
-    ref = simulate(_scaled(sysn, 1 / factor_ref), every=every * factor_ref)
-    summary["discretisation"]["reference"] = f"golden at dt/{factor_ref}"
+    log(f"golden reference at dt / {factor_ref} (on the cpu backend, equal to golden to 1e-12)")
+    sys_ref = _scaled(sysn, 1 / factor_ref)
+    ref = simulate(sys_ref, every=every * factor_ref, stepper=Cpu(sys_ref))
+    summary["discretisation"]["reference"] = f"golden physics at dt/{factor_ref} (cpu backend)"
     for factor in (1, 2, 4):
         label = "dt" if factor == 1 else f"{factor}dt"
+        scaled = _scaled(sysn, factor)
         try:
-            run = gold if factor == 1 else simulate(_scaled(sysn, factor), every=every // factor)
+            run = gold if factor == 1 else simulate(scaled, every=every // factor)
+            fast = cpu if factor == 1 else simulate(scaled, every=every // factor, stepper=Cpu(scaled))
         except SimulationDiverged as exc:
             summary["discretisation"][label] = {"diverged": str(exc)}
             continue
@@ -105,6 +115,8 @@ def build(sys: System, out_dir, presets=("narrow", "medium", "wide"), max_ref_st
         summary["discretisation"][label] = {"dt": sys.dt * factor, "max_m": float(mx.max()),
                                             "max_relative": float(rel.max()),
                                             "run_time_per_simulated_second": run.wall_seconds / T}
+        summary["cpu"]["discretisation"][label] = {"max_relative": float(_errors(fast.x, ref.x, size)[2].max()),
+                                                   "run_time_per_simulated_second": fast.wall_seconds / T}
 
     with open(out / "error.csv", "w", newline="") as f:
         w = csv.writer(f)
@@ -149,6 +161,9 @@ def _plots(out: Path, cols: dict, summary: dict) -> None:
     for label, d in summary["discretisation"].items():
         if isinstance(d, dict) and "max_relative" in d:
             ax.loglog(d["run_time_per_simulated_second"], max(d["max_relative"], floor), "s", label=f"golden {label}")
+    for label, d in summary.get("cpu", {}).get("discretisation", {}).items():
+        ax.loglog(d["run_time_per_simulated_second"], max(d["max_relative"], floor), "^",
+                  label=f"cpu backend {label} (Numba)")
     _finish(fig, ax, "wall seconds per simulated second (this machine)",
             f"{summary['scene']}: accuracy against cost", out / "cost_vs_accuracy.png")
 

@@ -70,7 +70,8 @@ def report(sys_, measure: bool = False, model: str = "golden", preset: str = "wi
         return out
     try:
         if model in ("golden", "both"):
-            out["measured"] = _measured(measure_dt(sys_, pred=p))
+            from sim.cpu import stability_model      # the golden physics, compiled: the same verdicts, faster
+            out["measured"] = {**_measured(measure_dt(sys_, pred=p, model=stability_model)), "stepper": "cpu"}
         if model in ("fixed", "both"):
             from hw.stability_fixed import measure_fixed
             m = measure_fixed(sys_, preset, pred=p)

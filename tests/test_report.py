@@ -31,7 +31,11 @@ def test_report_orders_presets_and_time_steps(tmp_path):
     assert 0 < d["dt"] < d["2dt"] < d["4dt"], d               # first-order scheme: error grows with dt
     assert 1.5 < d["4dt"] / d["2dt"] < 2.5                    # ... about linearly
     rt = s["run_time_per_simulated_second"]
-    assert rt["golden"] > 0 and rt["fixed-wide"] > 0
+    assert rt["golden"] > 0 and rt["fixed-wide"] > 0 and rt["cpu"] > 0
+    # the cpu backend is the golden physics: the same run to 1e-12, the same discretisation errors
+    assert s["cpu"]["max_relative_vs_golden"] <= 1e-12
+    for label, dc in s["cpu"]["discretisation"].items():
+        assert abs(dc["max_relative"] - d[label]) <= 1e-9 * d[label] + 1e-12, (label, dc, d[label])
     # the FPGA: every element and every node take a clock of one lane, at the stated clock
     cyc = s["fpga"]["cycles_per_step"]["wide"]
     assert cyc >= 134 + 55 and s["fpga"]["clock_mhz"] == 50.0
