@@ -1,24 +1,29 @@
 """The compiled CPU backend: the golden model's physics (MODEL.md v2) as Numba loops, float64.
 
-This is the yardstick every speed claim is measured against, and a fast fallback. It mirrors
-`golden/` term for term, one scalar function per golden function:
+This is the yardstick every speed claim is measured against, and a fast fallback (`--backend cpu`). It
+mirrors `golden/` term for term, one function per golden function:
 
-    golden/elements.py  solve_convex, ElementParams.phi / psi, element_forces  ->  _solve, _phi, _psi, _tension
-    golden/topology.py  topology_forces, facet_frame, foot_weights             ->  _topology, _normal, _foot
-    golden/contact.py   Floor.forces, Collision.candidates / forces            ->  _floor, _collisions
-    golden/model.py     Golden.forces, Golden.step                             ->  _forces, _run
+    golden/elements.py  solve_convex, phi / psi, element_forces   ->  _newton / _solve, _phi / _psi, _tension
+    golden/topology.py  topology_forces, facet_frame, foot_weights ->  _topology, _normal, _foot
+    golden/contact.py   Floor.forces, Collision.candidates/forces  ->  _floor, _collisions, _contact
+    golden/model.py     Golden.forces, Golden.step                 ->  _forces, _run
 
 and is tested against golden (`tests/test_cpu.py`): after 100 steps of every built-in scene and of random
-meshes and materials, positions agree to 1e-12 of the object size and a to 1e-12. The results differ
-from golden only by the order of floating-point sums.
+scenes, positions agree to 1e-12 of the object size and a to 1e-12 (in practice to the last bits: only
+the order of floating-point sums differs, and the vectorised exp below).
 
-Work per step: one pass over elements, one over topology pairs, one over nodes, and for collisions a
-uniform-grid broad phase (golden's: sort the surface vertices' cell keys, binary-search the 3^D cells
-around each facet) followed by the narrow phase on the candidates. `advance(state, n)` runs n steps in
-one compiled call, so Python costs nothing per step. With `threads` > 1 the element pass runs in
-parallel (`prange`; each thread scatters its share of the elements into its own copy of the forces);
-`threads=None` chooses by size (`PARALLEL_MIN_ELEMENTS`, measured with `rheo bench --backend cpu`).
-The first use compiles (tens of seconds); `cache=True` keeps the machine code for later runs.
+The element pass is golden's, in passes that LLVM vectorises: edge vectors, l^2 and d . (v_j - v_i);
+Phi's linear pieces for every element, which flag the elements that need more; the flagged ones on a
+stop go through `_tension` (scalar, exactly golden's branches), the others (a drive on the damper's
+exponential piece) are compacted into a list and solved by Newton sweeps over it, with a branch-free
+exp (`_exp`, within an ulp) so that the sweeps vectorise too; then the scatter to the nodes. State is
+stored component-major (D, N) as in golden's State. Contact terms loop over pairs with scratch vectors.
+
+`advance(state, n)` runs n steps in one compiled call (no Python per step). With `threads` > 1 the
+element passes run in parallel (`prange`; each thread scatters its share of the elements into its own
+copy of the forces); `threads=None` chooses by size (`PARALLEL_MIN_ELEMENTS`, measured with
+`rheo bench --backend cpu`). The first use compiles (about a minute); `cache=True` keeps the machine
+code beside this file for later runs.
 """
 from __future__ import annotations
 
@@ -41,8 +46,9 @@ def _jit(**flags):
 
 
 SOLVE_RTOL, SOLVE_ATOL, SOLVE_MAX_ITER = 1e-12, 1e-300, 100   # golden/elements.py's
-# Below this many elements one thread is faster than two on this 2-core machine (rheo bench --backend cpu)
-PARALLEL_MIN_ELEMENTS = 5_000
+# Below this many elements one thread is as fast as two or faster on this 2-core machine (rheo bench --backend
+# cpu: 1e4 elements 14,100 against 13,200 steps/s, 1e5 elements 1,590 against 1,930)
+PARALLEL_MIN_ELEMENTS = 30_000
 PARALLEL_MIN_SOLVES = 4096      # fewer solves than this: one thread (a parallel sweep costs its start-up)
 
 # Inside loops, arrays are locals: a namedtuple's array costs a reference count on every access.
