@@ -7,6 +7,7 @@ message that names the scene, the table and the key. The format is documented in
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from dataclasses import dataclass
 from importlib import resources
@@ -22,6 +23,16 @@ from .model import Load, System, Topology
 
 class SceneError(ValueError):
     """A scene that cannot be loaded or run; the message names the problem."""
+
+
+PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
+
+
+def file_stem(name: str) -> str:
+    """`name` as a file name with no directory part, for output and build paths: no output path may come
+    from inside an input file (a scene's `name` is validated as a plain name; this guards the rest)."""
+    stem = re.sub(r"[^A-Za-z0-9._-]+", "-", str(name)).strip(".-")
+    return stem[:100] or "scene"
 
 
 # ---------------------------------------------------------------- materials
@@ -151,7 +162,10 @@ def load_scene(ref: str | Path) -> Scene:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"{source}: not valid TOML: {exc}") from None
-    scene = Scene(str(data.get("name", name)), source, base, data)
+    if "name" in data and not (isinstance(data["name"], str) and PLAIN_NAME.fullmatch(data["name"])):
+        raise SceneError(f"{source}: 'name' must be a plain name of letters, digits, '.', '_' and '-' "
+                         f"(it names output files), got {data['name']!r}")
+    scene = Scene(str(data.get("name", file_stem(name))), source, base, data)
     compile_scene(scene)   # validate everything now, so errors appear at load time
     return scene
 

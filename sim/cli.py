@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import signal
 import sys
 from pathlib import Path
 
@@ -240,6 +242,7 @@ def cmd_run(args) -> int:
     """The main job: golden and bit-true runs, the Verilog checked bit for bit on Icarus, the error
     report, the synthesis summary, pictures and VTK; prints where everything went."""
     from golden.model import frame_steps
+    from golden.scene import file_stem
     from hw import emit
     from hw.bittrue import BitTrue, simulate_fixed
     from sim import report, runfile
@@ -253,14 +256,15 @@ def cmd_run(args) -> int:
     print(f"[1/{n}] golden run of {sys_.name}: {sys_.n_nodes} nodes, {sys_.n_elements} elements, "
           f"{sys_.n_steps} steps of {sys_.dt:g} s (float64)", flush=True)
     run, _ = _simulate(sys_, "golden", None, None)
-    npz = runfile.save(out / f"{sys_.name}.npz", runfile.run_arrays(sys_, run, "golden"))
+    stem = file_stem(sys_.name)      # no output path from inside the scene file
+    npz = runfile.save(out / f"{stem}.npz", runfile.run_arrays(sys_, run, "golden"))
     print(f"      {run.wall_seconds:.2f} s wall -> {npz}")
     print(f"[2/{n}] pictures, animation, VTK", flush=True)
-    png = render(npz, out / f"{sys_.name}.png")
+    png = render(npz, out / f"{stem}.png")
     peak = _peak_frame(sys_, run)
-    ba = render_before_after(npz, out / f"{sys_.name}-before-after.png", [0, peak, len(run.t) - 1],
+    ba = render_before_after(npz, out / f"{stem}-before-after.png", [0, peak, len(run.t) - 1],
                              ["before", f"loaded (t = {run.t[peak]:.2f} s)", f"after release (t = {run.t[-1]:.2f} s)"])
-    gif = render(npz, out / f"{sys_.name}.gif")
+    gif = render(npz, out / f"{stem}.gif")
     files = export_vtk(npz, out / "vtk")
     print(f"      {png}\n      {ba}\n      {gif}\n      {len(files)} frames -> {out / 'vtk' / 'run.pvd'}")
     print(f"[3/{n}] bit-true run (preset {args.preset})", flush=True)
@@ -462,15 +466,29 @@ def main(argv=None) -> int:
     from sim.synth import SynthesisError
     parser = build_parser()
     args = parser.parse_args(argv)
+    signal.signal(signal.SIGTERM, _terminated)       # SIGTERM like Ctrl-C: outputs are cleaned up alike
     try:
         return args.func(args)
+    except BrokenPipeError:                          # `rheo scenes | head -1`: the reader left; no message
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except (UsageError, MeshError, SimulationDiverged, ValueError, FileNotFoundError, OSError,
             SimulatorMissing, SynthesisError) as exc:
-        print(f"rheo: error: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", file=sys.stderr)
+        print(error_line(exc), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("rheo: interrupted", file=sys.stderr)
         return 130
+
+
+def error_line(exc: BaseException) -> str:
+    """The one line a user error prints: its message's lines joined, so a remedy on a later line is kept."""
+    text = "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+    return f"rheo: error: {text or type(exc).__name__}"
+
+
+def _terminated(signum, frame):
+    raise KeyboardInterrupt
 
 
 if __name__ == "__main__":

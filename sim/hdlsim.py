@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from golden.model import System, frame_steps, simulate
+from golden.scene import file_stem
 from hw import emit
 from hw.bittrue import BitTrue
 from .host import HostDriver
@@ -32,7 +33,7 @@ def emit_core(bt: BitTrue, lanes=1, node_lanes=1, root: Path | None = None):
     """Emit the core's Verilog into a directory named after its hash; returns (dir, manifest, driver)."""
     core, text, man = emit.build(bt, lanes, node_lanes)
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
-    d = (root or build_root()) / f"{bt.sys.name}-{digest}"
+    d = (root or build_root()) / f"{file_stem(bt.sys.name)}-{digest}"
     d.mkdir(parents=True, exist_ok=True)
     v = d / f"{emit.TOP}.v"
     if not v.exists() or v.read_text() != text:

@@ -12,8 +12,6 @@ malformed run file (missing keys, inconsistent shapes), bad frame indices or an 
 """
 from __future__ import annotations
 
-import os
-import tempfile
 import zipfile
 import zlib
 from pathlib import Path
@@ -377,17 +375,8 @@ def _suffix_of(out_path) -> str:
 
 
 def _write_atomically(out_path: Path, write) -> Path:
-    """Call write(tmp_path) on a temporary file next to out_path, then move it into place."""
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=out_path.suffix, prefix=f".{out_path.stem}.", dir=out_path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, out_path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return out_path
+    from .runfile import write_atomically
+    return write_atomically(out_path, write)
 
 
 def _panel_size(lo, hi, D: int, size: float) -> tuple[float, float]:

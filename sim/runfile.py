@@ -30,11 +30,19 @@ def save(path, arrays: dict) -> Path:
     path = Path(path)
     if path.suffix != ".npz":
         raise ValueError(f"output file must end in .npz, got '{path.name}'")
+    return write_atomically(path, lambda tmp: np.savez_compressed(tmp, **arrays))
+
+
+def write_atomically(path, write) -> Path:
+    """Call write(tmp) on a hidden temporary file beside `path`, give it the mode a plain open() would
+    (mkstemp's is 0600), then rename it into place: a failed or interrupted write (SIGINT, SIGTERM: the CLI
+    turns both into KeyboardInterrupt) leaves the old file byte-identical and no temporary behind."""
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".npz", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(suffix=path.suffix, prefix=f".{path.stem}.", dir=path.parent)
     os.close(fd)
     try:
-        np.savez_compressed(tmp, **arrays)
+        write(tmp)
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     finally:

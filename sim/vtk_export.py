@@ -12,8 +12,6 @@ malformed one.
 """
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -46,16 +44,8 @@ def write_pvd(path: Path, times, files) -> Path:
     for t, name in zip(times, files):
         lines.append(f'    <DataSet timestep="{float(t)!r}" group="" part="0" file={quoteattr(str(name))}/>')
     lines += ["  </Collection>", "</VTKFile>", ""]
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(suffix=".pvd", prefix=".run.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write("\n".join(lines))
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
+    from .runfile import write_atomically
+    return write_atomically(Path(path), lambda tmp: Path(tmp).write_text("\n".join(lines), encoding="utf-8"))
 
 
 def export_vtk(npz_path, out_dir) -> list[Path]:

@@ -279,8 +279,23 @@ def _floor_without_k(d, tmp):
     del d["world"]["floor"]["K"]
 
 
+def _name_is_a_path(d, tmp):
+    d["name"] = str(tmp / "elsewhere" / "RUN")
+
+
+def _name_climbs_out(d, tmp):
+    d["name"] = "../../escape"
+
+
+def _name_not_a_string(d, tmp):
+    d["name"] = 7
+
+
 # (id, mutate, words that must all appear in the error line)
 CASES = [
+    ("name-is-a-path", _name_is_a_path, ["'name'", "plain name", "RUN"]),
+    ("name-climbs-out", _name_climbs_out, ["'name'", "plain name", "../../escape"]),
+    ("name-not-a-string", _name_not_a_string, ["'name'", "plain name", "7"]),
     ("missing-integrator", _missing_integrator, ["missing", "'integrator'"]),
     ("missing-dt", _missing_dt, ["[integrator]", "missing", "'dt'"]),
     ("unknown-top-level-key", _unknown_top_key, ["unknown key", "'colour'"]),
@@ -455,3 +470,18 @@ def test_existing_output_is_left_untouched(tmp_path, mutate):
     assert_one_line_error(proc)
     assert out.read_bytes() == old
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_output_and_build_paths_never_come_from_a_scene_name(tmp_path):
+    """Names that reach paths without passing load_scene (a System built in code, a file's stem) are reduced
+    to a plain file name: the build directory of a core stays inside its root."""
+    import dataclasses
+    from golden.scene import compile_scene, file_stem, load_scene
+    from hw.bittrue import BitTrue
+    from sim.hdlsim import emit_core
+    assert file_stem("/abs/path/RUN") == "abs-path-RUN" and file_stem("../..") == "scene"
+    assert file_stem("my scene") == "my-scene" and file_stem("press-2d-rheological") == "press-2d-rheological"
+    sys_ = dataclasses.replace(compile_scene(load_scene("creep-1d")), name=str(tmp_path / "outside" / "x"))
+    core_dir, _, _ = emit_core(BitTrue(sys_, "wide", range_steps=20), root=tmp_path / "build")
+    assert core_dir.parent == tmp_path / "build"
+    assert not (tmp_path / "outside").exists()
