@@ -18,6 +18,7 @@ import numpy as np
 from . import mesh as meshlib
 from .contact import Collision, Floor
 from .elements import ElementParams
+from .limits import mesh_nodes_fit
 from .model import Load, System, Topology
 
 
@@ -198,7 +199,10 @@ def _mesh(chk: _Tables, tbl, where, dim, base_dir) -> meshlib.Mesh:
     if kind == "single":
         return meshlib.single(chk.number(tbl, "length", where, lo=0, lo_open=True), dim)
     if kind == "chain":
-        return meshlib.chain(chk.integer(tbl, "n", where), chk.number(tbl, "length", where, lo=0, lo_open=True), dim)
+        n = chk.integer(tbl, "n", where)
+        if (why := mesh_nodes_fit(n + 1, f"a chain of n = {n}")) is not None:
+            chk.fail(where, why)
+        return meshlib.chain(n, chk.number(tbl, "length", where, lo=0, lo_open=True), dim)
     if kind in ("rectangle", "box"):
         size = chk.vector(tbl, "size", where, dim)
         if np.any(size <= 0):
@@ -206,6 +210,8 @@ def _mesh(chk: _Tables, tbl, where, dim, base_dir) -> meshlib.Mesh:
         div = tbl["divisions"]
         if not (isinstance(div, list) and len(div) == dim and all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in div)):
             chk.fail(where, f"'divisions' must be a list of {dim} integers >= 1, got {div!r}")
+        if (why := mesh_nodes_fit(math.prod(n + 1 for n in div), f"a {kind} of divisions {div}")) is not None:
+            chk.fail(where, why)
         m = meshlib.rectangle(size[0], size[1], *div) if dim == 2 else meshlib.box(size, div)
         cuts = tbl.get("remove", [])
         if not isinstance(cuts, list):

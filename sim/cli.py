@@ -52,8 +52,26 @@ def _load_system(ref: str):
             n = 0
         if not 10 <= n <= 10_000_000:
             raise UsageError(f"'{ref}': square:N takes a whole number of elements N in 10..10000000")
+        _check_square_fits(n)
         return bench.square_system(n)
     return compile_scene(load_scene(ref))
+
+
+def _check_frames_fit(sys_, steps, every) -> None:
+    """A run records every frame in memory: refuse, before running, what this machine cannot hold."""
+    from golden.limits import over_memory
+    steps = sys_.n_steps if steps is None else steps
+    every = max(1, sys_.every if every is None else every)
+    frames = steps // every + 2
+    need = frames * (2 * sys_.n_nodes * sys_.dim + sys_.n_elements) * 8.0
+    if (why := over_memory(need, f"recording {frames:.3g} frames ({steps} steps, every {every})")) is not None:
+        raise UsageError(f"{why}: record fewer frames (a larger --every or fewer --steps)")
+
+
+def _check_square_fits(n_elements: int) -> None:
+    from golden.limits import mesh_nodes_fit
+    if (why := mesh_nodes_fit(n_elements / 3, f"a generated square of {n_elements} elements")) is not None:
+        raise UsageError(why)
 
 
 def _simulate(sys_, backend: str, steps, every, progress=True, preset="wide", lanes=1, node_lanes=1):
@@ -106,6 +124,7 @@ def cmd_simulate(args) -> int:
     from sim.stability_cmd import refuse_if_unstable
     sys_ = _load_system(args.scene)
     refuse_if_unstable(sys_, args.force)
+    _check_frames_fit(sys_, args.steps, args.every)
     run, extra = _simulate(sys_, args.backend, args.steps, args.every, preset=args.preset,
                            lanes=args.lanes, node_lanes=args.node_lanes)
     runfile.save(args.out, {**runfile.run_arrays(sys_, run, args.backend), **extra})
@@ -205,6 +224,8 @@ def cmd_bench(args) -> int:
     elif any(v is not None for v in (args.preset, args.fmax_mhz)) or args.lanes != 1 or args.node_lanes != 1:
         raise UsageError("--preset, --lanes, --node-lanes and --fmax-mhz belong to --backend fpga")
     sizes = args.sizes or ([10_000] if args.backend == "fpga" else list(bench.SIZES))
+    for n in sizes:
+        _check_square_fits(n)
     try:
         rows = bench.run(args.backend, sizes=sizes, min_seconds=args.seconds, scene=scene, **fpga)
     except ValueError as exc:

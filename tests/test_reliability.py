@@ -63,3 +63,41 @@ def test_sigterm_leaves_the_old_output_and_no_temporary(tmp_path):
     assert "interrupted" in err and "Traceback" not in err
     assert out.read_bytes() == before
     assert sorted(f.name for f in tmp_path.iterdir()) == ["run.npz"]
+
+
+CHAIN = """description = "huge"
+dim = 2
+[integrator]
+dt = 1e-4
+duration = 0.01
+[[objects]]
+name = "c"
+mesh = {mesh}
+material = {{ preset = "viscoelastic", node_mass = 1e-3 }}
+"""
+
+
+@pytest.mark.parametrize("mesh, words", [
+    ('{ type = "chain", n = 1000000000000, length = 1.0 }', ["chain of n = 1000000000000", "GB of memory"]),
+    ('{ type = "rectangle", size = [1.0, 1.0], divisions = [100000, 100000] }', ["divisions", "GB of memory"]),
+])
+def test_sizes_this_machine_cannot_hold_are_refused_before_allocating(tmp_path, mesh, words):
+    scene = tmp_path / "huge.toml"
+    scene.write_text(CHAIN.format(mesh=mesh))
+    out = tmp_path / "r.npz"
+    r = rheo("simulate", scene, "--out", out, timeout=60)     # refused at once: nothing is allocated
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "Traceback" not in r.stderr, r.stderr
+    assert all(w in r.stderr for w in words), r.stderr
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("args, words", [
+    (["simulate", "creep-1d", "--steps", "1000000000000", "--out", "{out}"], ["frames", "--every"]),
+    (["bench", "--sizes", "1000000000000"], ["generated square", "GB of memory"]),
+])
+def test_flags_this_machine_cannot_hold_are_refused_before_running(tmp_path, args, words):
+    out = tmp_path / "r.npz"
+    r = rheo(*[a.format(out=out) for a in args], timeout=60)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "Traceback" not in r.stderr, r.stderr
+    assert all(w in r.stderr for w in words), r.stderr
+    assert not out.exists()
