@@ -27,23 +27,15 @@ model's exact scatter, whatever the order.
 Node state (x, u per dimension) lives in memories of ceil(N/Q) words, one memory per node lane slot;
 element lanes read both end nodes through their own read ports.
 
-Host interface (`host`): word addresses, 32-bit data; writes take effect at once, reads return
-`r_data` with `r_valid` exactly 3 cycles after `r_en` (READ_LATENCY). Writes to memories while busy are ignored, and
-memory reads while busy return undefined words: the host shares the pipeline's read ports (block RAM).
-
-  0x000000  ID (read): 0x52484530 ("RHE0")
-  0x000001  RUN: write n > 0 to run n steps (busy at once); read: steps left
-  0x000002  STATUS (read): bit 0 busy, bit 1 any saturation since the last clear
-  0x000003  STEP: the step counter (read/write; loads act by step number)
-  0x000004  SATURATIONS (read): saturation count (saturates at 2^32 - 1); write: clear count and flags
-  0x000005  SATURATION FLAGS (read): sticky flag per quantity (bit order in the manifest)
-  0x000006  CYCLES (read): clock cycles spent running since reset
-  0x100000 + field * NODE_STRIDE + n      node n, field 0..D-1 = x_k, D..2D-1 = u_k (raw, sign-extended)
-  0x200000 + field * ELEM_STRIDE + slot  element state by lane slot (slot = lane * S + position):
-                                          field 0 = a (the only element state)
+Host interface (`host`): the registers and address map of hw/hostmap.py (one definition, shared with the
+host driver, the testbench and the manifest); writes take effect at once, reads return `r_data` with
+`r_valid` exactly READ_LATENCY cycles after `r_en`. Writes to memories while busy are ignored, and memory
+reads while busy return undefined words: the host shares the pipeline's read ports (block RAM). Node n
+lives in memory n % Q at word n // Q, element e in lane e % P at position e // P (`HostMap.interleaved`).
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,19 +45,14 @@ from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
 from .datapath import Params, _node_flags, collision_kernel, element_kernel, node_kernel, pair_kernel
-
-# (vertex, facet) pair kinds: lane name prefix, Params table, per-item kernel
-PAIR_KINDS = (("pr", "topology", pair_kernel), ("co", "collision", collision_kernel))
+from .hostmap import ADDR_BITS, ELEM_BASE, ID_WORD, NODE_BASE, HostMap, Reg
 from .pipeline import PipeArith
 from .rtl_fixed import as_shape, tree_sum
 
-ID_WORD = 0x52484530
-REG_ID, REG_RUN, REG_STATUS, REG_STEP, REG_SAT, REG_SAT_FLAGS, REG_CYCLES = range(7)
-NODE_BASE, ELEM_BASE = 0x100000, 0x200000
-READ_LATENCY = 3
+# (vertex, facet) pair kinds: lane name prefix, Params table, per-item kernel
+PAIR_KINDS = (("pr", "topology", pair_kernel), ("co", "collision", collision_kernel))
 SAT_COUNT_LATENCY = 2  # lane sums of saturation flags, then their sum over lanes, then sat_count
 RMW_WRITE = 2          # an accumulator bank word read at stage s is written back at stage s + RMW_WRITE
-ADDR_BITS = 24
 
 HostSignature = wiring.Signature({
     "addr": Out(ADDR_BITS), "w_data": Out(32), "w_en": Out(1), "r_en": Out(1),
@@ -143,33 +130,26 @@ class CoreConfig:
     def lane_items(self, n_items, lane):
         return np.arange(lane, n_items, self.lanes)
 
-    # ---- host addresses (no division in hardware: fields are bit ranges)
+    # ---- host addresses (hw/hostmap.py; no division in hardware: fields are bit ranges)
+    @functools.cached_property
+    def host_map(self) -> HostMap:
+        return HostMap.interleaved(self.dim, self.n_nodes, self.node_lanes, self.n_elements, self.lanes)
+
     @property
     def word_bits(self):
-        return max(1, (self.node_words - 1).bit_length())
+        return self.host_map.word_bits
 
     @property
     def slot_bits(self):
-        return max(1, (self.node_lanes - 1).bit_length())
+        return self.host_map.slot_bits
 
     @property
     def pos_bits(self):
-        return max(1, (self.element_slots - 1).bit_length())
+        return self.host_map.pos_bits
 
     @property
     def lane_bits(self):
-        return max(1, (self.lanes - 1).bit_length())
-
-    def node_addr(self, field, n):
-        """Host word address of node n's field (0..D-1: x_k, D..2D-1: u_k)."""
-        n = np.asarray(n)
-        return (NODE_BASE + (field << (self.word_bits + self.slot_bits)) + ((n % self.node_lanes) << self.word_bits)
-                + n // self.node_lanes)
-
-    def elem_addr(self, field, e):
-        """Host word address of element e's state field (0: a, the only one)."""
-        e = np.asarray(e)
-        return ELEM_BASE + (field << (self.pos_bits + self.lane_bits)) + ((e % self.lanes) << self.pos_bits) + e // self.lanes
+        return self.host_map.lane_bits
 
     def features(self):
         return self.params.features()
@@ -574,7 +554,7 @@ class Core(wiring.Component):
             m.d.sync += per_cycle.eq(tree_sum([c for _, c in events]))
             hits = Cat(*[Cat(*[(c != 0) for qq, c in events if qq == q]).any() for q in quantities])
             new_count = sat_count + per_cycle
-            with m.If(host.w_en & (h_addr == REG_SAT)):
+            with m.If(host.w_en & (h_addr == Reg.SATURATIONS)):
                 m.d.sync += [sat_count.eq(0), sat_flags.eq(0)]
             with m.Else():
                 m.d.sync += [sat_count.eq(Mux(new_count >> 32 != 0, 0xFFFFFFFF, new_count[:32])),
@@ -615,28 +595,28 @@ class Core(wiring.Component):
                     with m.Else():
                         m.d.sync += cnt.eq(cnt + 1)
         with m.Elif(host.w_en):
-            with m.If(h_addr == REG_RUN):
+            with m.If(h_addr == Reg.RUN):
                 with m.If(host.w_data != 0):
                     m.d.sync += [busy.eq(1), steps_left.eq(host.w_data), phase.eq(0), cnt.eq(0)]
-            with m.If(h_addr == REG_STEP):
+            with m.If(h_addr == Reg.STEP):
                 m.d.sync += step_no.eq(host.w_data)
 
         # register reads: decode the address registered twice with r_en, answer one cycle later
         r_data = Signal(32)
         with m.Switch(r_addr2):
-            with m.Case(REG_ID):
+            with m.Case(Reg.ID):
                 m.d.comb += r_data.eq(ID_WORD)
-            with m.Case(REG_RUN):
+            with m.Case(Reg.RUN):
                 m.d.comb += r_data.eq(steps_left)
-            with m.Case(REG_STATUS):
+            with m.Case(Reg.STATUS):
                 m.d.comb += r_data.eq(Cat(busy, sat_flags.any()))
-            with m.Case(REG_STEP):
+            with m.Case(Reg.STEP):
                 m.d.comb += r_data.eq(step_no)
-            with m.Case(REG_SAT):
+            with m.Case(Reg.SATURATIONS):
                 m.d.comb += r_data.eq(sat_count)
-            with m.Case(REG_SAT_FLAGS):
+            with m.Case(Reg.SATURATION_FLAGS):
                 m.d.comb += r_data.eq(sat_flags)
-            with m.Case(REG_CYCLES):
+            with m.Case(Reg.CYCLES):
                 m.d.comb += r_data.eq(cycles)
             with m.Default():
                 r_off = r_addr2 - NODE_BASE

@@ -11,8 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .bittrue import BitTrue
-from .core import (ADDR_BITS, Core, CoreConfig, ELEM_BASE, ID_WORD, NODE_BASE, READ_LATENCY, REG_CYCLES,
-                   REG_ID, REG_RUN, REG_SAT, REG_SAT_FLAGS, REG_STATUS, REG_STEP)
+from .core import Core, CoreConfig
 
 TOP = "rheo_core"
 
@@ -122,16 +121,7 @@ def manifest(bt: BitTrue, core: Core) -> dict:
         },
         "saturation_flags": core.sat_quantities,
         "constant_saturations": core.const_saturations,
-        "host_interface": {
-            "addr_bits": ADDR_BITS, "data_bits": 32, "read_latency_cycles": READ_LATENCY,
-            "registers": {"ID": REG_ID, "RUN": REG_RUN, "STATUS": REG_STATUS, "STEP": REG_STEP,
-                          "SATURATIONS": REG_SAT, "SATURATION_FLAGS": REG_SAT_FLAGS, "CYCLES": REG_CYCLES},
-            "id_word": ID_WORD, "node_base": NODE_BASE, "element_base": ELEM_BASE,
-            "node_address": "node_base + (field << (word_bits + slot_bits)) + ((n % Q) << word_bits) + n // Q",
-            "element_address": "element_base + (field << (pos_bits + lane_bits)) + ((e % P) << pos_bits) + e // P",
-            "word_bits": cfg.word_bits, "slot_bits": cfg.slot_bits, "pos_bits": cfg.pos_bits,
-            "lane_bits": cfg.lane_bits,
-        },
+        "host_interface": cfg.host_map.to_dict(),
     }
 
 

@@ -19,6 +19,7 @@ import numpy as np
 from cocotb.clock import Clock
 from cocotb.triggers import ClockCycles, FallingEdge
 
+from hw.hostmap import ID_WORD, STATUS_BUSY, Reg
 from sim.host import HostDriver
 
 
@@ -30,7 +31,7 @@ class CocotbBus:
 
     async def write(self, addr, data):
         d = self.dut
-        d.host__addr.value = addr
+        d.host__addr.value = int(addr)
         d.host__w_data.value = data & 0xFFFFFFFF
         d.host__w_en.value = 1
         await FallingEdge(d.clk)
@@ -40,7 +41,7 @@ class CocotbBus:
         d = self.dut
         out = []
         for a in addrs:
-            d.host__addr.value = a
+            d.host__addr.value = int(a)
             d.host__r_en.value = 1
             await FallingEdge(d.clk)
             if int(d.host__r_valid.value):
@@ -72,19 +73,19 @@ async def run_job(dut):
     await _reset(dut)
     bus = CocotbBus(dut)
     drv = HostDriver.from_job(job, bus)
-    ident = (await bus.read_many([0]))[0]
-    assert ident == 0x52484530, hex(ident)
+    ident = (await bus.read_many([Reg.ID]))[0]
+    assert ident == ID_WORD, hex(ident)
     load = [tuple(w) for w in job["load_words"]]
     reset_after = int(job.get("reset_after", 0))
     if reset_after > 0:                                   # a reset in the middle of a run
         await drv.write_words(load)
-        await bus.write(1, 5)
+        await bus.write(Reg.RUN, 5)
         await ClockCycles(dut.clk, reset_after, rising=False)
         dut.rst.value = 1
         await FallingEdge(dut.clk)
         dut.rst.value = 0
-        status, step = await bus.read_many([2, 3])
-        assert status & 1 == 0 and step == 0, (status, step)
+        status, step = await bus.read_many([Reg.STATUS, Reg.STEP])
+        assert status & STATUS_BUSY == 0 and step == 0, (status, step)
     await drv.write_words(load)
     reads, cycles = [], []
     t0 = time.perf_counter()

@@ -38,7 +38,7 @@ def emit_core(bt: BitTrue, lanes=1, node_lanes=1, root: Path | None = None):
     v = d / f"{emit.TOP}.v"
     if not v.exists() or v.read_text() != text:
         v.write_text(text)
-    drv = HostDriver.for_config(core.cfg, core.cycles_per_step)
+    drv = HostDriver.for_map(core.cfg.host_map, core.cycles_per_step)
     return d, man, drv
 
 

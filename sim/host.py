@@ -1,4 +1,4 @@
-"""The host side of the accelerator's register interface (hw/core.py): load a scene, run, read back.
+"""The host side of the accelerator's register interface (hw/hostmap.py): load a scene, run, read back.
 
 Written once against a tiny asynchronous bus (`write(addr, data)`, `read_many(addrs)`, `wait(cycles)`),
 so that Amaranth's simulator (sim/hwsim.py) and the cocotb testbenches on Icarus and Verilator
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hw.core import REG_CYCLES, REG_RUN, REG_SAT, REG_SAT_FLAGS, REG_STATUS, REG_STEP
+from hw.hostmap import STATUS_BUSY, HostMap, Reg
 
 
 def to_signed32(v: int) -> int:
@@ -26,10 +26,8 @@ class HostDriver:
             raise ValueError(f"one element state field (a), got {len(self.elem_addrs)}")
 
     @classmethod
-    def for_config(cls, cfg, cycles_per_step: int, bus=None) -> "HostDriver":
-        n, e = np.arange(cfg.n_nodes), np.arange(cfg.n_elements)
-        return cls(cfg.dim, [cfg.node_addr(f, n) for f in range(2 * cfg.dim)], [cfg.elem_addr(0, e)],
-                   cycles_per_step, bus)
+    def for_map(cls, host_map: HostMap, cycles_per_step: int, bus=None) -> "HostDriver":
+        return cls(host_map.dim, host_map.node_addrs(), host_map.elem_addrs(), cycles_per_step, bus)
 
     def to_job(self) -> dict:
         return {"dim": self.dim, "cycles_per_step": self.cycles_per_step,
@@ -46,7 +44,7 @@ class HostDriver:
         for f, vals in enumerate(list(X) + list(U)):
             words += [(int(a), int(v)) for a, v in zip(self.node_addrs[f], np.asarray(vals))]
         words += [(int(a), int(v)) for a, v in zip(self.elem_addrs[0], np.asarray(A))]
-        return words + [(REG_STEP, int(step)), (REG_SAT, 0)]      # the last write clears the saturations
+        return words + [(Reg.STEP, int(step)), (Reg.SATURATIONS, 0)]      # the last write clears the saturations
 
     async def write_words(self, words):
         for addr, data in words:
@@ -57,17 +55,17 @@ class HostDriver:
 
     async def run(self, steps: int) -> int:
         """Run `steps` steps and wait until the core is idle; returns the cycles the run took."""
-        before = (await self.bus.read_many([REG_CYCLES]))[0]
-        await self.bus.write(REG_RUN, int(steps))
+        before = (await self.bus.read_many([Reg.CYCLES]))[0]
+        await self.bus.write(Reg.RUN, int(steps))
         await self.bus.wait(max(1, steps * self.cycles_per_step - 8))
-        while (await self.bus.read_many([REG_STATUS]))[0] & 1:
+        while (await self.bus.read_many([Reg.STATUS]))[0] & STATUS_BUSY:
             await self.bus.wait(4)
-        after = (await self.bus.read_many([REG_CYCLES]))[0]
+        after = (await self.bus.read_many([Reg.CYCLES]))[0]
         return (after - before) & 0xFFFFFFFF
 
     @property
     def read_addrs(self) -> list[int]:
-        addrs = np.concatenate(self.node_addrs + self.elem_addrs + [np.array([REG_STEP, REG_SAT, REG_SAT_FLAGS])])
+        addrs = np.concatenate(self.node_addrs + self.elem_addrs + [np.array([Reg.STEP, Reg.SATURATIONS, Reg.SATURATION_FLAGS])])
         return [int(a) for a in addrs]
 
     async def read_raw(self) -> list[int]:

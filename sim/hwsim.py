@@ -26,7 +26,7 @@ class AmaranthBus:
 
     async def write(self, addr, data):
         c, h = self.ctx, self.host
-        c.set(h.addr, addr)
+        c.set(h.addr, int(addr))
         c.set(h.w_data, data & 0xFFFFFFFF)
         c.set(h.w_en, 1)
         await c.tick()
@@ -36,7 +36,7 @@ class AmaranthBus:
         c, h = self.ctx, self.host
         out = []
         for a in addrs:                      # one read issued per cycle, answers READ_LATENCY cycles later
-            c.set(h.addr, a)
+            c.set(h.addr, int(a))
             c.set(h.r_en, 1)
             await c.tick()
             if c.get(h.r_valid):
@@ -73,7 +73,7 @@ class AmaranthCore:
             self._res.put(("err", exc))
 
     async def _testbench(self, ctx):
-        drv = HostDriver.for_config(self.cfg, self.core.cycles_per_step, AmaranthBus(ctx, self.core.host))
+        drv = HostDriver.for_map(self.cfg.host_map, self.core.cycles_per_step, AmaranthBus(ctx, self.core.host))
         while True:
             cmd, args = self._cmd.get()
             if cmd == "stop":
