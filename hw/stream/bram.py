@@ -1,0 +1,264 @@
+"""`BlockRam`: a simple dual-port block RAM (or ROM) with its output register, read latency 2.
+
+One write port and one read port in one clock domain. The address presented in cycle t gives its word in
+cycle t + 2 (`LATENCY`), from a register: the block RAM's own output register, so that nothing but
+routing follows a block RAM's clock-to-output delay (5.8 ns on an ECP5 without the register, 0.95 ns
+with it). A read presented in the cycle of a write to the same word is undefined (callers never use its
+data); writes are visible to reads presented from the next cycle on. A word may be written in
+`segments` equal parts, each with its own enable (the ECP5's byte enables).
+
+Two variants, chosen at construction (`ram=`):
+
+- "sim": an Amaranth `Memory` with a synchronous, non-transparent read port, plus a register. For
+  Amaranth's simulator, Icarus and Verilator.
+- "ecp5": `DP16KD` instances (`rheo synth`): Yosys never sets a DP16KD's output register itself
+  (`memory_libmap` emits REGMODE NOREG), so the core instantiates them with REGMODE_B = "OUTREG". Each
+  block is 512 x 36 (pseudo dual port: DATA_WIDTH_A = DATA_WIDTH_B = 36, REGMODE_A = REGMODE_B =
+  "OUTREG"), 1024 x 18 or 2048 x 9, whichever needs the fewest blocks; deeper memories take rows of
+  blocks, whose outputs a registered row address selects. Segments are padded to whole 9-bit bytes.
+  Pins and INITVAL layout follow Yosys's lattice/brams_map_16kd.v; the Verilog model of the subset used
+  is `DP16KD_MODEL` (hw/stream/dp16kd.v), which simulators need beside the core's Verilog.
+
+`blocks()` states the DP16KD count of the "ecp5" variant for either variant (the manifest's budget).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from amaranth.hdl import Cat, ClockSignal, Const, Instance, Module, Mux, Signal, unsigned
+from amaranth.lib import wiring
+from amaranth.lib.memory import Memory
+from amaranth.lib.wiring import In, Out
+
+__all__ = ["BlockRam", "LATENCY", "RAM_VARIANTS", "DP16KD_MODEL", "plan_blocks"]
+
+LATENCY = 2
+RAM_VARIANTS = ("sim", "ecp5")
+DP16KD_MODEL = Path(__file__).resolve().parent / "dp16kd.v"
+BYTE = 9
+MODES = ((36, 512), (18, 1024), (9, 2048))       # DP16KD data width, depth
+
+
+def addr_bits(depth: int) -> int:
+    return max(1, int(depth - 1).bit_length())
+
+
+def _layout(width: int, segments: int):
+    """(padded width, segment width, padded segment width): segments start at multiples of 9 bits."""
+    if segments == 1:
+        return width, width, width
+    seg = width // segments
+    pseg = -(-seg // BYTE) * BYTE
+    return pseg * segments, seg, pseg
+
+
+def plan_blocks(width: int, depth: int, segments: int = 1):
+    """(data width of the blocks, depth of a block, rows, columns) with the fewest DP16KD blocks."""
+    total, _, _ = _layout(width, segments)
+    best = None
+    for w, d in MODES:
+        rows, cols = -(-depth // d), -(-total // w)
+        cand = (rows * cols, rows, -w, w, d, rows, cols)
+        if best is None or cand < best:
+            best = cand
+    _, _, _, w, d, rows, cols = best
+    return w, d, rows, cols
+
+
+class BlockRam(wiring.Component):
+    """A simple dual-port RAM of `depth` words of `width` bits (a ROM with `writable=False`).
+
+    Parameters
+    ----------
+    width, depth : int
+    init : list of int, optional
+        Initial contents (a ROM's contents).
+    segments : int
+        The word is written in this many equal parts, each with its own bit of `w_en`.
+    writable : bool
+        False: a ROM (no write port; `w_*` are ignored).
+    ram : "sim" or "ecp5"
+        The variant (module docstring).
+
+    Members
+    -------
+    w_addr, w_data, w_en : In
+        Write: word `w_addr` takes `w_data` in the parts whose `w_en` bits are set, at the clock edge.
+    r_addr : In
+        Read address; `r_data` (Out) holds that word LATENCY = 2 cycles later.
+    """
+
+    def __init__(self, width: int, depth: int, *, init=None, segments: int = 1, writable: bool = True,
+                 ram: str = "sim"):
+        if ram not in RAM_VARIANTS:
+            raise ValueError(f"unknown block RAM variant {ram!r} (known: {', '.join(RAM_VARIANTS)})")
+        if width < 1 or depth < 1:
+            raise ValueError(f"a block RAM needs width and depth >= 1, got {width} x {depth}")
+        if segments < 1 or width % segments:
+            raise ValueError(f"width {width} does not split into {segments} segments")
+        self.width, self.depth, self.segments, self.writable, self.ram = width, depth, segments, writable, ram
+        self.init = [int(v) & ((1 << width) - 1) for v in (init or [])]
+        if len(self.init) > depth:
+            raise ValueError(f"{len(self.init)} initial words for a depth of {depth}")
+        self.abits = addr_bits(depth)
+        super().__init__({
+            "w_addr": In(self.abits), "w_data": In(width), "w_en": In(segments),
+            "r_addr": In(self.abits), "r_data": Out(width),
+        })
+
+    def blocks(self) -> int:
+        """DP16KD blocks of the "ecp5" variant."""
+        _, _, rows, cols = plan_blocks(self.width, self.depth, self.segments)
+        return rows * cols
+
+    def elaborate(self, platform):
+        return self._sim() if self.ram == "sim" else self._ecp5()
+
+    # ---- Amaranth Memory and an output register
+    def _sim(self):
+        m = Module()
+        mem = Memory(shape=unsigned(self.width), depth=self.depth, init=self.init)
+        m.submodules.mem = mem
+        if self.writable:
+            seg = self.width // self.segments
+            wp = mem.write_port(granularity=seg if self.segments > 1 else None)
+            m.d.comb += [wp.addr.eq(self.w_addr), wp.data.eq(self.w_data),
+                         wp.en.eq(self.w_en if self.segments > 1 else self.w_en[0])]
+        rp = mem.read_port(domain="sync")
+        m.d.comb += rp.addr.eq(self.r_addr)
+        m.d.sync += self.r_data.eq(rp.data)
+        return m
+
+    # ---- DP16KD instances
+    def _ecp5(self):
+        m = Module()
+        w, d, rows, cols = plan_blocks(self.width, self.depth, self.segments)
+        total, seg, pseg = _layout(self.width, self.segments)
+        lbits = addr_bits(d)
+        shift = {36: 5, 18: 4, 9: 3}[w]
+
+        def padded(value):
+            """The word in the padded layout (segments at multiples of 9 bits)."""
+            if self.segments == 1:
+                return value
+            return Cat(*[Cat(value[s * seg:(s + 1) * seg], Const(0, pseg - seg)) for s in range(self.segments)])
+
+        wdata = padded(self.w_data)
+        nbytes = -(-total // BYTE)
+        if self.segments > 1:
+            byte_en = [self.w_en[(b * BYTE) // pseg] for b in range(nbytes)]
+        else:
+            byte_en = [self.w_en[0]] * nbytes
+        row_w = self.w_addr[lbits:] if rows > 1 else None
+        row_r = self.r_addr[lbits:] if rows > 1 else None
+        outs = []
+        for r in range(rows):
+            wsel = (row_w == r) if rows > 1 else Const(1, 1)
+            dout = []
+            for c in range(cols):
+                lo = c * w
+                bits = Signal(w, name=f"do_r{r}_c{c}")
+                be = [(byte_en[(lo + k * BYTE) // BYTE] if lo + k * BYTE < total else Const(0, 1)) & wsel
+                      & Const(int(self.writable), 1) for k in range(w // BYTE)]
+                di = Signal(w, name=f"di_r{r}_c{c}")
+                m.d.comb += di.eq(wdata[lo:lo + w] if lo < total else 0)
+                m.submodules[f"bram_r{r}_c{c}"] = self._instance(
+                    w, shift, lbits, di, bits, be, self.w_addr[:lbits], self.r_addr[:lbits],
+                    self._initvals(r * d, d, w, lo, total))
+                dout.append(bits)
+            outs.append(Cat(*dout)[:total])
+        if rows > 1:
+            rsel = Signal.like(row_r, name="row_d1")
+            rsel2 = Signal.like(row_r, name="row_d2")
+            m.d.sync += [rsel.eq(row_r), rsel2.eq(rsel)]
+            word = Signal(total)
+            with m.Switch(rsel2):
+                for r in range(rows):
+                    with m.Case(r):
+                        m.d.comb += word.eq(outs[r])
+        else:
+            word = outs[0]
+        if self.segments > 1:
+            m.d.comb += self.r_data.eq(Cat(*[word[s * pseg:s * pseg + seg] for s in range(self.segments)]))
+        else:
+            m.d.comb += self.r_data.eq(word[:self.width])
+        return m
+
+    def _initvals(self, base, d, w, lo, total):
+        """INITVAL_00 .. 3F of the block holding words base .. base + d - 1, bits lo .. lo + w - 1."""
+        if not self.init:
+            return None
+        seg, pseg = self.width // self.segments, _layout(self.width, self.segments)[2]
+        chunks = [0] * 1024
+        for a in range(d):
+            if base + a >= len(self.init):
+                break
+            v = self.init[base + a]
+            if self.segments > 1:
+                v = sum(((v >> (s * seg)) & ((1 << seg) - 1)) << (s * pseg) for s in range(self.segments))
+            bits = (v >> lo) & ((1 << w) - 1)
+            if w == 36:
+                chunks[2 * a] |= bits & 0x3FFFF
+                chunks[2 * a + 1] |= bits >> 18
+            elif w == 18:
+                chunks[a] |= bits
+            else:
+                chunks[a >> 1] |= bits << (9 * (a & 1))
+        vals = []
+        for i in range(64):
+            vals.append(sum(chunks[i * 16 + k] << (20 * k) for k in range(16)))
+        return vals
+
+    def _instance(self, w, shift, lbits, di, do, be, waddr, raddr, initvals):
+        """One DP16KD: port A writes, port B reads (REGMODE_B = "OUTREG")."""
+        zero = Const(0, 1)
+        ada = [zero] * 14
+        adb = [zero] * 14
+        for k in range(min(lbits, len(waddr))):
+            ada[shift + k] = waddr[k]
+            adb[shift + k] = raddr[k]
+        any_en = Cat(*be).any()
+        if w == 36:
+            for k in range(4):
+                ada[k] = be[k]
+            wea, cea = Const(1, 1), any_en
+        elif w == 18:
+            ada[0], ada[1] = be[0], be[1]
+            wea, cea = any_en, Const(1, 1)
+        else:
+            wea, cea = be[0], Const(1, 1)
+        dia = di[:18] if w >= 18 else Cat(di[:9], Const(0, 9))
+        dib = di[18:36] if w == 36 else Const(0, 18)
+        params = {"p_DATA_WIDTH_A": w, "p_DATA_WIDTH_B": w,
+                  "p_REGMODE_A": "OUTREG" if w == 36 else "NOREG", "p_REGMODE_B": "OUTREG",
+                  "p_RESETMODE": "SYNC", "p_ASYNC_RESET_RELEASE": "SYNC",
+                  "p_CSDECODE_A": "0b000", "p_CSDECODE_B": "0b000",
+                  "p_WRITEMODE_A": "NORMAL", "p_WRITEMODE_B": "NORMAL", "p_GSR": "AUTO"}
+        if initvals is not None:
+            for i, v in enumerate(initvals):
+                params[f"p_INITVAL_{i:02X}"] = Const(v, 320)
+        ports = {"i_CLKA": ClockSignal(), "i_CLKB": ClockSignal(), "i_CEA": cea, "i_WEA": wea,
+                 "i_OCEA": Const(1, 1), "i_RSTA": zero, "i_CEB": Const(1, 1), "i_WEB": zero,
+                 "i_OCEB": Const(1, 1), "i_RSTB": zero}
+        for k in range(3):
+            ports[f"i_CSA{k}"] = zero
+            ports[f"i_CSB{k}"] = zero
+        for k in range(14):
+            ports[f"i_ADA{k}"] = ada[k]
+            ports[f"i_ADB{k}"] = adb[k]
+        for k in range(18):
+            ports[f"i_DIA{k}"] = dia[k]
+            ports[f"i_DIB{k}"] = dib[k]
+        doa = Signal(18, name="doa")
+        dob = Signal(18, name="dob")
+        for k in range(18):
+            ports[f"o_DOA{k}"] = doa[k]
+            ports[f"o_DOB{k}"] = dob[k]
+        inst = Instance("DP16KD", **params, **ports)
+        sub = Module()
+        sub.submodules.dp16kd = inst
+        if w == 36:
+            sub.d.comb += do.eq(Cat(doa, dob))
+        else:
+            sub.d.comb += do.eq(dob[:w])
+        return sub

@@ -1,0 +1,251 @@
+"""The streaming core's static schedule: every cycle the hardware relies on, computed and checked at
+construction (plain Python and NumPy, no Amaranth).
+
+Time. Step k's items issue at slots c = 0 .. C - 1, one per lane and cycle, at run cycle
+A0 + k T + c (T: the period, A0: the prologue). Everything else is given relative to the start of its
+step's issue (a cycle may be negative: before the step starts, or beyond T: in the next period). Nodes
+go in *groups* of Q consecutive nodes (node n in group n // Q, bank n % Q, one node per node lane):
+the fill reads a group from the node store, a node lane retires one node of a group, all in one cycle.
+
+  issue      slot c: the lane's ROM (and its a word) is read; ROM data at c + M (M = MEMORY = 2)
+  ring read  c + M: the node's window address is presented; x, u at c + 2M (the pipeline's stage 2M)
+  contrib.   c + s: the pipeline's force (stage s: `Latencies.element` / `.pair`) reads its force ring;
+             the sum is written at c + s + RMW (RMW = 2), readable from c + s + RMW + 1
+  fill       t_f[g]: the node store's word g is read; written into every window copy at t_f[g] + M,
+             readable by a read presented from t_f[g] + M + 1
+  retire     t_r[g]: the node lanes present group g's window and force ring addresses; results at
+             t_r[g] + `Latencies.node`, written into the node store in that cycle
+
+Rules (a read presented in the cycle of a write to the same word sees neither value for sure, so every
+read the data path uses is strictly before or after the write it depends on):
+
+  fill       t_f[g] = min(first read of g - M - 1, t_f[g + 1] - 1): as late as possible, one group a cycle
+  retire     t_r[g] = max(last contribution write of g + 1, t_f[g] + M + 1, t_r[g - 1] + 1): as early as
+             possible, in group order, one group a cycle
+  period     T = max(C, a write stage + 1 (an element's a is written before the next step reads it),
+             fill span, retirement span (each at most one period), max_g t_r[g] + node + 1 - t_f[g]
+             (a node is written into the store before the next step's fill reads it))
+  window     Wg groups (W = Wg Q nodes, a power of two groups): the smallest with, for every group g and
+             the virtual group g + Wg that takes its slot next (in this step or a later one):
+             the last read of g (items' ring reads, the node lane's) < the fill write of g + Wg, and
+             the retirement of g < the first force-ring write of g + Wg (so no ring is ever cleared: a
+             lane's first contribution to a node in a step counts the old word as 0)
+  run        fill, issue and retirement each run n periods from their own start (A0 + t_f[0], A0,
+             A0 + t_r[0], all at least LOOKAHEAD so that their phase ROMs can be read ahead); the run
+             ends `drain` cycles after the last retirement starts: RUN n takes run_cycles(n) cycles.
+
+Window slots run on across steps: group g of step k is virtual group v = k Gs + g (Gs groups a step) in
+slot v mod Wg, so each unit keeps a base register that adds Gs mod Wg at its step boundary.
+
+A scene whose window would exceed `max_window_groups` is refused with `BandwidthError`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .order import StreamOrder
+
+MEMORY = 2            # block RAM: address presented in cycle t, data (from its output register) in t + 2
+RMW = 2               # a force ring word read at stage s is written back at stage s + RMW
+LOOKAHEAD = 2         # the phase ROMs are read this many cycles ahead of their process
+SAT_TAIL = 4          # from a node's last result stage to the core's saturation count register
+MAX_WINDOW_GROUPS = 512      # the largest window: one 512 x 36 DP16KD column per 36 bits of a group
+NONE = np.iinfo(np.int64).max // 4
+
+
+class BandwidthError(ValueError):
+    """The scene's node numbering spans more nodes than the largest window holds."""
+
+
+@dataclass(frozen=True)
+class Latencies:
+    """Pipeline stages the schedule relies on (each measured by a dry run of its pipeline)."""
+    element: int          # stage of the element pipeline's force contributions (issue = stage 0)
+    element_state: int    # stage at which the element lane writes its new a (<= element)
+    node: int             # stage of the node pipeline's results (retirement = stage 0)
+    pair: int = 0         # stage of the pair pipeline's force contributions (0: no pairs)
+
+
+@dataclass(frozen=True, eq=False)
+class StreamSchedule:
+    """The static schedule of one core (see the module docstring for the rules).
+
+    Per group g (arrays of Gs): fill[g], retire[g]. Per node n (new numbering, arrays of N):
+    first_read[n], last_read[n] (cycles the ring address is presented), first_write[n],
+    last_write[n] (force ring writes); NONE where a node has none. Cycles are relative to the start of
+    the step's issue. `binding` names what sets T.
+    """
+    n_nodes: int
+    lanes: int                 # P
+    node_lanes: int            # Q
+    groups: int                # Gs = ceil(N / Q)
+    slots: int                 # C: item slots a step
+    element_slots: int         # ceil(E / P)
+    pair_slots: int            # ceil(pairs / P)
+    period: int                # T
+    window_groups: int         # Wg
+    latencies: Latencies
+    fill: np.ndarray
+    retire: np.ndarray
+    first_read: np.ndarray
+    last_read: np.ndarray
+    first_write: np.ndarray
+    last_write: np.ndarray
+    bandwidth: int
+    binding: str
+    bounds: dict = field(default_factory=dict)
+
+    # ---- derived figures
+    @property
+    def window_nodes(self) -> int:
+        return self.window_groups * self.node_lanes
+
+    @property
+    def base_step(self) -> int:
+        """What a window base register adds at a step boundary: Gs mod Wg."""
+        return self.groups % self.window_groups
+
+    @property
+    def issue_start(self) -> int:
+        """A0: run cycle of step 0's slot 0 (the prologue: the fills that precede it)."""
+        return max(LOOKAHEAD, LOOKAHEAD - int(self.fill[0]))
+
+    @property
+    def fill_start(self) -> int:
+        return self.issue_start + int(self.fill[0])
+
+    @property
+    def retire_start(self) -> int:
+        return self.issue_start + int(self.retire[0])
+
+    @property
+    def drain(self) -> int:
+        """Cycles from the start of the last step's issue to the run's end (busy falls after it)."""
+        return int(self.retire[-1]) + self.latencies.node + SAT_TAIL
+
+    def run_cycles(self, steps: int) -> int:
+        """Cycles RUN `steps` keeps the core busy: prologue, steps - 1 periods, the last step's drain."""
+        return self.issue_start + (steps - 1) * self.period + self.drain + 1
+
+    def fill_phases(self) -> np.ndarray:
+        """(T,) bits: the fill process reads a group at this phase of its period."""
+        bits = np.zeros(self.period, np.int64)
+        bits[self.fill - self.fill[0]] = 1
+        return bits
+
+    def retire_phases(self) -> np.ndarray:
+        bits = np.zeros(self.period, np.int64)
+        bits[self.retire - self.retire[0]] = 1
+        return bits
+
+    def to_dict(self) -> dict:
+        """The manifest's view."""
+        lat = self.latencies
+        return {
+            "period_T": self.period, "item_slots_C": self.slots, "element_slots": self.element_slots,
+            "pair_slots": self.pair_slots, "binding": self.binding, "bounds": dict(self.bounds),
+            "groups_Gs": self.groups, "node_lanes_Q": self.node_lanes, "lanes_P": self.lanes,
+            "window_groups_Wg": self.window_groups, "window_nodes_W": self.window_nodes,
+            "bandwidth": self.bandwidth, "prologue_A0": self.issue_start,
+            "fill_start": self.fill_start, "retire_start": self.retire_start, "drain": self.drain,
+            "run_cycles": "A0 + (n - 1) T + drain + 1",
+            "latencies": {"memory": MEMORY, "rmw_write": RMW, "lookahead": LOOKAHEAD, "saturation_tail": SAT_TAIL,
+                          "element": lat.element, "element_state": lat.element_state, "pair": lat.pair,
+                          "node": lat.node},
+        }
+
+
+def _node_extremes(n_nodes, nodes_per_item, cycles_per_item):
+    """Per node: (min, max) of the cycles of the items touching it (NONE / -NONE where none)."""
+    lo = np.full(n_nodes, NONE, np.int64)
+    hi = np.full(n_nodes, -NONE, np.int64)
+    for nodes, cyc in zip(nodes_per_item, cycles_per_item):
+        if len(nodes):
+            np.minimum.at(lo, nodes, cyc)
+            np.maximum.at(hi, nodes, cyc)
+    return lo, hi
+
+
+def _by_group(arr, Q, Gs, fill, reduce):
+    pad = np.full(Gs * Q, fill, np.int64)
+    pad[:len(arr)] = arr
+    return reduce(pad.reshape(Gs, Q), axis=1)
+
+
+def build_schedule(order: StreamOrder, lanes: int, node_lanes: int, lat: Latencies,
+                   max_window_groups: int = MAX_WINDOW_GROUPS) -> StreamSchedule:
+    """The schedule of a core streaming `order` on P = lanes element (and pair) lanes and Q = node_lanes
+    node lanes with these pipeline latencies; raises BandwidthError when no window up to
+    `max_window_groups` groups satisfies the rules."""
+    P, Q, N = int(lanes), int(node_lanes), order.n_nodes
+    if P < 1 or Q < 1:
+        raise ValueError(f"lanes and node lanes must be at least 1, got P = {P}, Q = {Q}")
+    if N < 1:
+        raise ValueError("a scene without nodes has no schedule")
+    E, Pn = len(order.ei), len(order.pair_nodes)
+    if Pn and lat.pair <= 0:
+        raise ValueError("pairs in the stream but no pair pipeline latency")
+    M = MEMORY
+    Ce, Cp = -(-E // P), -(-Pn // P)
+    C = max(Ce, Cp, 1)
+    Gs = -(-N // Q)
+    se, sp = np.arange(E) // P, np.arange(Pn) // P
+    nodes = [order.ei, order.ej] + [order.pair_nodes[:, r] for r in range(order.pair_nodes.shape[1] if Pn else 0)]
+    slots = [se, se] + [sp] * (len(nodes) - 2)
+    stage = [lat.element, lat.element] + [lat.pair] * (len(nodes) - 2)
+    first_read, last_read = _node_extremes(N, nodes, [c + M for c in slots])
+    first_write, last_write = _node_extremes(N, nodes, [c + s + RMW for c, s in zip(slots, stage)])
+
+    rd_first = _by_group(first_read, Q, Gs, NONE, np.min)
+    rd_last = _by_group(last_read, Q, Gs, -NONE, np.max)
+    wr_first = _by_group(first_write, Q, Gs, NONE, np.min)
+    wr_last = _by_group(last_write, Q, Gs, -NONE, np.max)
+
+    # fill: as late as possible, one group a cycle, in group order (a group nobody reads is filled just
+    # after the stream, before its retirement)
+    fill = np.zeros(Gs, np.int64)
+    nxt = NONE
+    for g in range(Gs - 1, -1, -1):
+        want = rd_first[g] - M - 1 if rd_first[g] < NONE else C + 1
+        fill[g] = min(want, nxt - 1)
+        nxt = fill[g]
+    # retirement: as early as possible, one group a cycle, in group order
+    retire = np.zeros(Gs, np.int64)
+    prev = -NONE
+    for g in range(Gs):
+        retire[g] = max(wr_last[g] + 1, fill[g] + M + 1, prev + 1)
+        prev = retire[g]
+
+    bounds = {
+        "items": C,
+        "a_state": lat.element_state + 1 if E else 1,
+        "fill_span": int(fill[-1] - fill[0] + 1),
+        "retire_span": int(retire[-1] - retire[0] + 1),
+        "node_store": int(np.max(retire + lat.node + 1 - fill)),
+    }
+    T = max(bounds.values())
+    binding = max(bounds, key=lambda k: (bounds[k], k == "items"))
+
+    # the window: the smallest power of two groups whose slot reuse is safe
+    last_ring_read = np.maximum(rd_last, retire)
+    g = np.arange(Gs)
+    Wg, ok = 1, False
+    while Wg <= max_window_groups:
+        v = g + Wg
+        s, g2 = v // Gs, v % Gs
+        refill = s * T + fill[g2] + M                     # the fill write of the slot's next group
+        first_w = np.where(wr_first[g2] < NONE, s * T + wr_first[g2], NONE)
+        if np.all(last_ring_read <= refill - 1) and np.all(retire <= first_w - 1):
+            ok = True
+            break
+        Wg *= 2
+    if not ok:
+        raise BandwidthError(
+            f"the scene's node numbering has bandwidth {order.bandwidth} (after reverse Cuthill-McKee): "
+            f"its live nodes do not fit the largest window the streaming core allows, {max_window_groups} "
+            f"groups of {Q} nodes ({max_window_groups * Q} nodes); use more node lanes (--node-lanes), "
+            f"or the phased core (--core phased)")
+    return StreamSchedule(N, P, Q, Gs, C, Ce, Cp, int(T), int(Wg), lat, fill, retire, first_read, last_read,
+                          first_write, last_write, order.bandwidth, binding, bounds)
