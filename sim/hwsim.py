@@ -14,7 +14,6 @@ from amaranth.sim import Simulator
 
 from golden.model import System, simulate
 from hw.bittrue import BitTrue, check_saturations
-from hw.core import Core, CoreConfig
 from .host import HostDriver
 
 
@@ -53,11 +52,13 @@ class AmaranthBus:
 
 
 class AmaranthCore:
-    """A core for one scene inside Amaranth's simulator, called like a HostDriver (blocking)."""
+    """A core for one scene inside Amaranth's simulator, called like a HostDriver (blocking).
+    `core`: "phased" (hw/core.py) or "stream" (hw/stream/core.py)."""
 
-    def __init__(self, bt: BitTrue, lanes: int = 1, node_lanes: int = 1):
-        self.cfg = CoreConfig.of(bt, lanes, node_lanes)
-        self.core = Core(self.cfg)
+    def __init__(self, bt: BitTrue, lanes: int = 1, node_lanes: int = 1, core: str = "phased"):
+        from hw.stream import build_core
+        self.core = build_core(bt, lanes, node_lanes, core)
+        self.cfg = self.core.cfg
         self.sim = Simulator(self.core)
         self.sim.add_clock(1e-8)
         self.cycles_per_step = self.core.cycles_per_step
@@ -140,10 +141,10 @@ class HardwareStepper:
 
 
 def simulate_amaranth(sys: System, preset="wide", steps=None, every=None, progress=False, lanes=1,
-                      node_lanes=1, bittrue: BitTrue | None = None):
+                      node_lanes=1, bittrue: BitTrue | None = None, core: str = "phased"):
     """Run the core in Amaranth's simulator; returns (Run, raw frames, BitTrue, info)."""
     bt = bittrue or BitTrue(sys, preset, range_steps=max(sys.n_steps, steps or 0))
-    hw = AmaranthCore(bt, lanes, node_lanes)
+    hw = AmaranthCore(bt, lanes, node_lanes, core)
     try:
         stepper = HardwareStepper(bt, hw, preset)
         run = simulate(sys, steps=steps, every=every, progress=progress, stepper=stepper)

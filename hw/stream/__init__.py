@@ -17,3 +17,31 @@ Modules, one concept each (no Amaranth in the first two):
   control.py    Control: the run, its prologue, periods and epilogue; hostport.py HostPort
   core.py       StreamCore: the top, composing the components; config.py StreamConfig
 """
+
+CORES = ("phased", "stream")
+
+
+def resolve_core(params, core: str = "auto") -> str:
+    """The core a scene gets: "auto" is the streaming core unless the scene has collisions (their pairs
+    are not local), which the phased core (hw/core.py) runs; asking for "stream" on such a scene fails
+    with NotStreamable."""
+    if core not in ("auto",) + CORES:
+        raise ValueError(f"unknown core {core!r} (known: auto, {', '.join(CORES)})")
+    if core == "auto":
+        return "phased" if params.collision is not None else "stream"
+    if core == "stream" and params.collision is not None:
+        from .config import NotStreamable
+        raise NotStreamable("the streaming core does not take scenes with collisions (collision pairs are not "
+                            "local to the node numbering): use --core phased")
+    return core
+
+
+def build_core(bt, lanes: int = 1, node_lanes: int = 1, core: str = "phased", ram: str = "sim"):
+    """The core (an Amaranth component with `cfg`, `host`, `cycles_per_step`) for a bit-true model."""
+    core = resolve_core(bt.params, core)
+    if core == "phased":
+        from ..core import Core, CoreConfig
+        return Core(CoreConfig.of(bt, lanes, node_lanes))
+    from .config import StreamConfig
+    from .core import StreamCore
+    return StreamCore(StreamConfig.of(bt, lanes, node_lanes, ram=ram))

@@ -31,7 +31,7 @@ read the data path uses is strictly before or after the write it depends on):
              the retirement of g < the first force-ring write of g + Wg (so no ring is ever cleared: a
              lane's first contribution to a node in a step counts the old word as 0)
   run        fill, issue and retirement each run n periods from their own start (A0 + t_f[0], A0,
-             A0 + t_r[0], all at least LOOKAHEAD so that their phase ROMs can be read ahead); the run
+             A0 + t_r[0], all beyond LOOKAHEAD so that their phase ROMs can be read ahead); the run
              ends `drain` cycles after the last retirement starts: RUN n takes run_cycles(n) cycles.
 
 Window slots run on across steps: group g of step k is virtual group v = k Gs + g (Gs groups a step) in
@@ -110,7 +110,7 @@ class StreamSchedule:
     @property
     def issue_start(self) -> int:
         """A0: run cycle of step 0's slot 0 (the prologue: the fills that precede it)."""
-        return max(LOOKAHEAD, LOOKAHEAD - int(self.fill[0]))
+        return max(LOOKAHEAD + 1, LOOKAHEAD + 1 - int(self.fill[0]))
 
     @property
     def fill_start(self) -> int:

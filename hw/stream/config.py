@@ -1,0 +1,131 @@
+"""`StreamConfig`: everything a streaming core is built from, decided at construction.
+
+From a bit-true model (its Params, formats and function units) and the lane counts: the stream order
+(hw/stream/order.py), the pipelines' stages (dry runs, hw/stream/kernels.py), the schedule
+(hw/stream/schedule.py), the node word layout, the force rings (one per lane role) with their
+accumulator widths, and the host address map of the renumbering (hw/hostmap.py).
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..hostmap import HostMap
+from .kernels import dry_run_element, dry_run_node, dry_run_pair, max_count
+from .nodeword import NodeWord
+from .order import lane_items, stream_order
+from .schedule import Latencies, build_schedule
+
+
+class NotStreamable(ValueError):
+    """A scene the streaming core does not take (collisions: their pairs are not local)."""
+
+
+@dataclass(frozen=True)
+class RingInfo:
+    """One force ring: lane kind ("el" or "pr"), lane, role, accumulator bits, and its items' nodes."""
+    kind: str
+    lane: int
+    role: int
+    acc_bits: int
+    nodes: np.ndarray = field(repr=False)       # new node numbers of the lane's items, in slot order
+
+    @property
+    def name(self) -> str:
+        return f"{self.kind}{self.lane}_r{self.role}"
+
+
+class StreamConfig:
+    """The static description of one streaming core (see the module docstring)."""
+
+    def __init__(self, params, formats, units, lanes: int = 1, node_lanes: int = 1, init: dict | None = None,
+                 ram: str = "sim", max_window_groups: int | None = None):
+        for name, v in (("lanes", lanes), ("node_lanes", node_lanes)):
+            if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 64:
+                raise ValueError(f"{name} must be an integer in 1..64, got {v!r}")
+        if params.collision is not None:
+            raise NotStreamable("the streaming core does not take scenes with collisions (collision pairs are "
+                                "not local to the node numbering): use the phased core (--core phased)")
+        self.params, self.formats, self.units = params, formats, units
+        self.lanes, self.node_lanes, self.ram = lanes, node_lanes, ram
+        self.init = init or {}
+        p = params
+        pairs = p.topology["pairs"] if p.topology is not None else np.zeros((0, p.dim + 1), np.int64)
+        self.order = stream_order(p.n_nodes, np.stack([p.i, p.j], 1), pairs)
+        self.element_dry = dry_run_element(p, formats, units)
+        self.pair_dry = dry_run_pair(p, formats, units) if len(pairs) else None
+        self.node_dry = dry_run_node(p, formats, units, formats["fe"].width + 8)
+        self.latencies = Latencies(element=self.element_dry.stage,
+                                   element_state=self.element_dry.outputs["state_stage"],
+                                   node=self.node_dry.stage,
+                                   pair=self.pair_dry.stage if self.pair_dry is not None else 0)
+        kw = {} if max_window_groups is None else {"max_window_groups": max_window_groups}
+        self.schedule = build_schedule(self.order, lanes, node_lanes, self.latencies, **kw)
+        self.word = NodeWord.of(formats, p.dim)
+
+    @classmethod
+    def of(cls, bt, lanes: int = 1, node_lanes: int = 1, ram: str = "sim", **kw) -> "StreamConfig":
+        st = bt.initial_state()
+        return cls(bt.params, bt.formats, bt.ar.units, lanes, node_lanes, {"X": st.X, "U": st.U, "A": st.A},
+                   ram, **kw)
+
+    # ---- sizes
+    @property
+    def dim(self) -> int:
+        return self.params.dim
+
+    @property
+    def n_nodes(self) -> int:
+        return self.params.n_nodes
+
+    @property
+    def n_elements(self) -> int:
+        return len(self.order.ei)
+
+    @property
+    def n_pairs(self) -> int:
+        return len(self.order.pair_nodes)
+
+    def element_items(self, lane: int) -> np.ndarray:
+        """Stream positions of the elements lane `lane` runs, in slot order."""
+        return lane_items(self.n_elements, self.lanes, lane)
+
+    def pair_items(self, lane: int) -> np.ndarray:
+        return lane_items(self.n_pairs, self.lanes, lane)
+
+    # ---- force rings, in the order of the node lanes' mask bits
+    @functools.cached_property
+    def rings(self) -> list[RingInfo]:
+        fe = self.formats["fe"].width
+        out = []
+        for lane in range(self.lanes):
+            items = self.element_items(lane)
+            for role, nodes in enumerate((self.order.ei[items], self.order.ej[items])):
+                out.append(RingInfo("el", lane, role, fe + max_count(nodes).bit_length() + 1, nodes))
+        if self.n_pairs:
+            for lane in range(self.lanes):
+                items = self.pair_items(lane)
+                for role in range(self.dim + 1):
+                    nodes = self.order.pair_nodes[items, role]
+                    out.append(RingInfo("pr", lane, role, fe + max_count(nodes).bit_length() + 1, nodes))
+        return out
+
+    def ring_masks(self) -> np.ndarray:
+        """(N, rings) bits: ring r holds contributions to node n (new numbering)."""
+        mask = np.zeros((self.n_nodes, len(self.rings)), np.int64)
+        for r, ring in enumerate(self.rings):
+            mask[np.unique(ring.nodes).astype(np.int64), r] = 1
+        return mask
+
+    # ---- host addresses of the renumbering
+    @functools.cached_property
+    def host_map(self) -> HostMap:
+        Q, P = self.node_lanes, self.lanes
+        perm, pos = self.order.perm, self.order.element_position()
+        return HostMap(self.dim, perm % Q, perm // Q, Q, self.schedule.groups, pos % P, pos // P, P,
+                       max(self.schedule.element_slots, 1))
+
+    def features(self):
+        return self.params.features()

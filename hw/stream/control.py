@@ -1,0 +1,130 @@
+"""`Control`: the run. RUN n starts three periodic processes that follow the schedule
+(hw/stream/schedule.py) for n periods each, from their own start cycles:
+
+  fill     at run cycle fill_start + k T + phase, where the fill phase ROM has a 1: group g (counted
+           from 0 in each period) of step k is read from the node store; `fill` carries it
+  issue    at issue_start + k T + c, c < C: item slot c of step k; `issue`
+  retire   at retire_start + k T + phase, where the retire phase ROM has a 1: group g of step k
+           retires; `retire` (with the step number: STEP, which counts retired steps)
+
+Each process keeps a window base register, k Gs mod Wg for its step k, added to its group index for
+the window slot. Its counters run LOOKAHEAD cycles ahead of its events, so that the phase ROM (a
+BlockRam, read latency 2) answers in time. The run ends `drain` cycles after the last step's last
+retirement (its results written and its saturations counted): busy falls after run_cycles(n) cycles.
+STEP counts every retired step; the RUN register (steps left) counts down with it. CYCLES counts the
+cycles spent busy since reset. While idle, the host may write STEP (`step_we`) and start a run.
+"""
+from __future__ import annotations
+
+from amaranth.hdl import Module, Signal
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
+
+from .bram import BlockRam
+from .element import IssueSignature
+from .node import RetireSignature
+from .nodeword import bits_for, delay
+from .schedule import LOOKAHEAD, SAT_TAIL
+
+FillSignature = RetireSignature
+
+
+class Control(wiring.Component):
+    def __init__(self, schedule, ram: str = "sim"):
+        self.schedule, self.ram = schedule, ram
+        sch = schedule
+        self.wbits, self.gbits = bits_for(sch.window_groups), bits_for(sch.groups)
+        super().__init__({
+            "start": In(1), "steps": In(32), "step_we": In(1), "step_wdata": In(32),
+            "busy": Out(1), "cycles": Out(32), "steps_left": Out(32), "step": Out(32),
+            "fill": Out(wiring.Signature({"valid": Out(1), "group": Out(self.gbits), "slot": Out(self.wbits)})),
+            "issue": Out(IssueSignature(sch.slots, sch.window_groups)),
+            "retire": Out(wiring.Signature({"valid": Out(1), "group": Out(self.gbits), "slot": Out(self.wbits),
+                                            "step": Out(32), "last": Out(1)})),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        sch = self.schedule
+        T = sch.period
+        cap = max(sch.retire_start, sch.fill_start, sch.issue_start)
+        busy, a, n = Signal(), Signal(range(cap + 1)), Signal(32)     # a: run cycle, up to the last start
+        m.d.comb += self.busy.eq(busy)
+        with m.If(busy):
+            m.d.sync += self.cycles.eq(self.cycles + 1)
+            with m.If(a != cap):
+                m.d.sync += a.eq(a + 1)
+
+        def process(name, start, rom_bits):
+            """(valid, phase, step) at event time, and the end of the process's last step."""
+            ph_e, k_e, act_e = Signal(range(T), name=f"{name}_ph_e"), Signal(32, name=f"{name}_k_e"), Signal(name=f"{name}_act_e")
+            with m.If(busy & (a == start - LOOKAHEAD - 1)):       # phase 0 at start - LOOKAHEAD
+                m.d.sync += [act_e.eq(1), ph_e.eq(0), k_e.eq(0)]
+            with m.Elif(act_e):
+                with m.If(ph_e == T - 1):
+                    m.d.sync += [ph_e.eq(0), k_e.eq(k_e + 1)]
+                    with m.If(k_e == n - 1):
+                        m.d.sync += act_e.eq(0)
+                with m.Else():
+                    m.d.sync += ph_e.eq(ph_e + 1)
+            with m.If(~busy):
+                m.d.sync += act_e.eq(0)
+            act, ph = delay(m, act_e, LOOKAHEAD, f"{name}_act"), delay(m, ph_e, LOOKAHEAD, f"{name}_ph")
+            if rom_bits is None:
+                en = act
+            else:
+                rom = BlockRam(1, T, init=[int(b) for b in rom_bits], writable=False, ram=self.ram)
+                m.submodules[f"{name}_phases"] = rom
+                m.d.comb += rom.r_addr.eq(ph_e)
+                en = Signal(name=f"{name}_en")
+                m.d.comb += en.eq(act & rom.r_data[0])
+            # the step's window base: k Gs mod Wg
+            base = Signal(self.wbits, name=f"{name}_base")
+            with m.If(~act):
+                m.d.sync += base.eq(0)
+            with m.Elif(ph == T - 1):
+                m.d.sync += base.eq(base + sch.base_step)
+            return en, ph, base
+
+        # fill
+        f_en, f_ph, f_base = process("fill", sch.fill_start, sch.fill_phases())
+        f_g = Signal(self.gbits, name="fill_group")
+        with m.If(f_en):
+            m.d.sync += f_g.eq(f_g + 1)
+        with m.If((f_ph == T - 1) | ~busy):
+            m.d.sync += f_g.eq(0)
+        m.d.comb += [self.fill.valid.eq(f_en), self.fill.group.eq(f_g), self.fill.slot.eq(f_base + f_g)]
+        # issue
+        i_act, i_ph, i_base = process("issue", sch.issue_start, None)
+        m.d.comb += [self.issue.valid.eq(i_act & (i_ph < sch.slots)), self.issue.slot.eq(i_ph),
+                     self.issue.base.eq(i_base)]
+        # retire
+        r_en, r_ph, r_base = process("retire", sch.retire_start, sch.retire_phases())
+        r_g = Signal(self.gbits, name="retire_group")
+        with m.If(r_en):
+            m.d.sync += r_g.eq(r_g + 1)
+        with m.If((r_ph == T - 1) | ~busy):
+            m.d.sync += r_g.eq(0)
+        last = Signal()
+        m.d.comb += [last.eq(r_en & (r_g == sch.groups - 1)),
+                     self.retire.valid.eq(r_en), self.retire.group.eq(r_g), self.retire.slot.eq(r_base + r_g),
+                     self.retire.step.eq(self.step), self.retire.last.eq(last)]
+
+        # steps, the end of the run
+        drain = sch.latencies.node + SAT_TAIL
+        draining = Signal(range(drain + 2))
+        with m.If(busy):
+            with m.If(last):
+                m.d.sync += [self.step.eq(self.step + 1), self.steps_left.eq(self.steps_left - 1)]
+                with m.If(self.steps_left == 1):
+                    m.d.sync += draining.eq(drain)
+            with m.Elif(draining == 1):
+                m.d.sync += [busy.eq(0), draining.eq(0)]
+            with m.Elif(draining != 0):
+                m.d.sync += draining.eq(draining - 1)
+        with m.Else():
+            with m.If(self.step_we):
+                m.d.sync += self.step.eq(self.step_wdata)
+            with m.If(self.start & (self.steps != 0)):
+                m.d.sync += [busy.eq(1), a.eq(0), n.eq(self.steps), self.steps_left.eq(self.steps)]
+        return m

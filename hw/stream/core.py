@@ -1,0 +1,184 @@
+"""`StreamCore`: the streaming accelerator core (issue 15), composed of its components.
+
+Node state is stored once (`NodeStore`, Q banks). The element and topology-pair streams run in a
+bandwidth-reducing order (reverse Cuthill-McKee, hw/stream/order.py) on P element lanes (`ElementLane`)
+and P pair lanes (`PairLane`), which read their nodes from a sliding window (`NodeWindow`, one ring copy
+per read port, filled from the store just ahead of the first read) and add their forces into their own
+rings (`ForceRing`, one per lane role). A node retires as soon as the stream has passed its last
+contribution: Q node lanes (`NodeLane`) integrate it and write the store. There is no node phase and no
+drain between steps: steps run back to back, one period T apart, on the static schedule
+(hw/stream/schedule.py) that `Control` follows. `HostPort` speaks the register map of hw/hostmap.py,
+with the node and element placement of the renumbering (`cfg.host_map`).
+
+  cycles per step  T = max(ceil(items / P), the read-after-write bounds of the schedule)
+  a run of n steps run_cycles(n) = A0 + (n - 1) T + drain + 1 (prologue, periods, epilogue)
+
+Hazards are impossible by construction: the schedule is checked at construction against every
+read-after-write rule, and the pipelines' stages it relies on come from dry runs of the kernels (each
+lane asserts at elaboration that its pipeline has the same stages). The bit-true model's force sums are
+exact integers, so the streaming order gives its bits exactly.
+
+Everything is known at construction: `cycles_per_step`, `schedule`, `sat_quantities`, `memories()`.
+"""
+from __future__ import annotations
+
+from amaranth.hdl import Cat, Module
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In
+
+from .bram import LATENCY
+from .config import StreamConfig
+from .control import Control
+from .element import ElementLane
+from .forcering import ForceRing
+from .hostport import HostPort, HostSignature
+from .node import NodeLane
+from .nodeword import bits_for, delay, segment
+from .pair import PairLane
+from .saturation import SaturationCounter
+from .store import NodeStore
+from .window import NodeWindow
+
+
+class StreamCore(wiring.Component):
+    def __init__(self, cfg: StreamConfig):
+        if not isinstance(cfg, StreamConfig):
+            raise TypeError(f"StreamCore needs a StreamConfig, got {type(cfg).__name__}")
+        self.cfg = cfg
+        sch, word, ram = cfg.schedule, cfg.word, cfg.ram
+        P, Q, D = cfg.lanes, cfg.node_lanes, cfg.dim
+        self.schedule = sch
+        self.cycles_per_step = sch.period
+        self.control = Control(sch, ram)
+        self.store = NodeStore(word, Q, sch.groups, self._store_init(), ram)
+        self.elements = [ElementLane(cfg, lane) for lane in range(P)]
+        self.pairs = [PairLane(cfg, lane) for lane in range(P)] if cfg.n_pairs else []
+        reads = 2 * P + (D + 1) * len(self.pairs)
+        self.window = NodeWindow(word, Q, sch.window_groups, reads, 1, ram)
+        fe = cfg.formats["fe"].width
+        self.rings = [ForceRing(D, fe, ring.acc_bits, Q, sch.window_groups, ram) for ring in cfg.rings]
+        self.nodes = [NodeLane(cfg, q) for q in range(Q)]
+        lanes = self.elements + self.pairs + self.nodes
+        self.saturation = SaturationCounter([q for lane in lanes for q in lane.quantities])
+        self.sat_quantities = self.saturation.quantities
+        fields = [cfg.formats["x"]] * D + [cfg.formats["u"]] * D
+        self.hostport = HostPort(cfg.host_map, fields, cfg.formats["a"], len(self.sat_quantities))
+        self.const_saturations = {}
+        for dry in (cfg.element_dry, cfg.pair_dry, cfg.node_dry):
+            for k, n in (dry.ar.const_sat.items() if dry is not None else ()):
+                self.const_saturations[k] = self.const_saturations.get(k, 0) + n
+        super().__init__({"host": In(HostSignature)})
+
+    def _store_init(self):
+        """The initial node words per bank (the scene's initial state; the host loads it anyway)."""
+        cfg = self.cfg
+        if "X" not in cfg.init:
+            return None
+        Q, Gs, word = cfg.node_lanes, cfg.schedule.groups, cfg.word
+        banks = [[0] * Gs for _ in range(Q)]
+        for n in range(cfg.n_nodes):
+            o = cfg.order.inv[n]
+            banks[n % Q][n // Q] = word.pack_int([x[o] for x in cfg.init["X"]], [u[o] for u in cfg.init["U"]])
+        return banks
+
+    def memories(self) -> list[dict]:
+        """Every BlockRam of the core: name, depth, width, DP16KD blocks of the ECP5 variant."""
+        out = []
+
+        def add(name, ram):
+            out.append({"name": name, "depth": ram.depth, "width": ram.width, "dp16kd": ram.blocks()})
+        for q, bank in enumerate(self.store.banks()):
+            add(f"store_bank{q}", bank)
+        for k in range(self.window.copies()):
+            add(f"window_copy{k}", self.window.copy())
+        for ring, info in zip(self.rings, self.cfg.rings):
+            rmw, copy = ring.memories()
+            add(f"ring_{info.name}", rmw)
+            add(f"ring_{info.name}_node_copy", copy)
+        for lane in self.elements:
+            add(f"el{lane.lane}_a", lane.a_memory())
+        for name, ram in self._rom_shapes():
+            add(name, ram)
+        return out
+
+    def _rom_shapes(self):
+        from .bram import BlockRam
+        cfg, sch = self.cfg, self.schedule
+        wb, qb = bits_for(sch.window_groups), bits_for(cfg.node_lanes)
+        out = []
+        el_bits = 2 * (wb + qb + 1) + sum(b for _, b in cfg.element_dry.params)
+        for lane in self.elements:
+            out.append((f"el{lane.lane}_rom", BlockRam(el_bits, lane.depth, writable=False)))
+        if self.pairs:
+            pr_bits = (cfg.dim + 1) * (wb + qb + 1) + sum(b for _, b in cfg.pair_dry.params)
+            for lane in self.pairs:
+                out.append((f"pr{lane.lane}_rom", BlockRam(pr_bits, lane.depth, writable=False)))
+        nd_bits = len(cfg.rings) + sum(b for _, b in cfg.node_dry.params)
+        for lane in self.nodes:
+            out.append((f"nd{lane.q}_rom", BlockRam(max(1, nd_bits), sch.groups, writable=False)))
+        out += [("fill_phases", BlockRam(1, sch.period, writable=False)),
+                ("retire_phases", BlockRam(1, sch.period, writable=False))]
+        return out
+
+    def elaborate(self, platform):
+        m = Module()
+        cfg, sch = self.cfg, self.schedule
+        Q, D, word = cfg.node_lanes, cfg.dim, cfg.word
+        ctl, store, win, hp, sat = self.control, self.store, self.window, self.hostport, self.saturation
+        m.submodules.control, m.submodules.store, m.submodules.window = ctl, store, win
+        m.submodules.hostport, m.submodules.saturation = hp, sat
+        wiring.connect(m, wiring.flipped(self.host), hp.bus)
+
+        # control <-> host port
+        m.d.comb += [ctl.start.eq(hp.run_start), ctl.steps.eq(hp.run_steps), ctl.step_we.eq(hp.step_we),
+                     ctl.step_wdata.eq(hp.step_wdata),
+                     hp.busy.eq(ctl.busy), hp.steps_left.eq(ctl.steps_left), hp.step.eq(ctl.step),
+                     hp.cycles.eq(ctl.cycles), hp.sat_count.eq(sat.count), hp.sat_flags.eq(sat.flags),
+                     sat.clear.eq(hp.sat_clear)]
+
+        # node store: the fill reads, the node lanes write, the host while idle
+        m.d.comb += [store.busy.eq(ctl.busy), store.rd_addr.eq(ctl.fill.group),
+                     store.h_addr.eq(hp.node_addr), store.h_bank.eq(hp.node_bank), store.h_field.eq(hp.node_field),
+                     store.h_wdata.eq(hp.node_wdata), store.h_we.eq(hp.node_we), hp.node_rdata.eq(store.h_rdata)]
+        # the fill: the store's group, LATENCY cycles after its read, into every window copy
+        m.d.comb += [win.fill_addr.eq(delay(m, ctl.fill.slot, LATENCY, "fill_slot")),
+                     win.fill_en.eq(delay(m, ctl.fill.valid, LATENCY, "fill_valid")),
+                     win.fill_data.eq(store.rd_data)]
+
+        # element and pair lanes: issue, window reads, contributions into their rings
+        wiring.connect(m, ctl.issue, *[lane.issue for lane in self.elements + self.pairs])
+        ports = []
+        for lane in self.elements:
+            m.submodules[f"el{lane.lane}"] = lane
+            m.d.comb += [lane.busy.eq(ctl.busy), lane.host_pos.eq(hp.elem_pos), lane.host_wdata.eq(hp.elem_wdata),
+                         lane.host_we.eq(hp.elem_we[lane.lane]), hp.elem_rdata[lane.lane].eq(lane.host_rdata)]
+            ports += [(lane.ring_i, lane.contrib_i), (lane.ring_j, lane.contrib_j)]
+        for lane in self.pairs:
+            m.submodules[f"pr{lane.lane}"] = lane
+            ports += [(lane.rings[r], lane.contribs[r]) for r in range(D + 1)]
+        for (read, contrib), window_port, ring, info in zip(ports, win.reads, self.rings, cfg.rings):
+            m.submodules[f"ring_{info.name}"] = ring
+            wiring.connect(m, read, window_port)
+            wiring.connect(m, contrib, ring.add)
+
+        # retirement: the window's group port and every ring's node copy at the group's slot
+        m.d.comb += win.groups[0].addr.eq(ctl.retire.slot)
+        for ring in self.rings:
+            m.d.comb += ring.node_addr.eq(ctl.retire.slot)
+        for lane in self.nodes:
+            q = lane.q
+            m.submodules[f"nd{q}"] = lane
+            m.d.comb += [lane.retire.valid.eq(ctl.retire.valid), lane.retire.group.eq(ctl.retire.group),
+                         lane.retire.step.eq(ctl.retire.step),
+                         lane.node.eq(segment(win.groups[0].data, q, word.bits, Q)),
+                         lane.forces.eq(Cat(*[segment(ring.node_data, q, D * ring.acc_bits, Q) for ring in self.rings]))]
+        m.d.comb += [store.wr_addr.eq(self.nodes[0].store_group),
+                     store.wr_en.eq(Cat(*[lane.store_en for lane in self.nodes])),
+                     store.wr_data.eq(Cat(*[lane.store_data for lane in self.nodes]))]
+
+        # saturation events, in the order the counter was built with
+        evs = [getattr(lane, f"sat{k}") for lane in self.elements + self.pairs + self.nodes
+               for k in range(len(lane.quantities))]
+        for k, ev in enumerate(evs):
+            m.d.comb += getattr(sat, f"ev{k}").eq(ev)
+        return m

@@ -1,0 +1,144 @@
+"""`ElementLane`: one element lane of the streaming core: its ROM, a memory and pipeline.
+
+Item k of the element stream runs in lane k % P at slot k // P of every step (hw/stream/order.py).
+
+  stage 0    `issue`: slot c (and the step's window base): the lane's ROM and its a memory are read
+  stage 2    ROM fields (the window slots of nodes i and j: (base + g) mod Wg for their groups g, their
+             banks, "first contribution of this lane to this node in this step" per role, the per-element
+             parameters) and a; the window read ports `ring_i`, `ring_j` get the slots
+  stage 4    x, u of nodes i and j from the window
+  ...        hw/datapath.py `element_kernel` through PipeArith (hw/stream/kernels.py), one stage per
+             operation; the new a is written back at its stage (`state_stage`)
+  `stage`    contributions: +fe to node i (`contrib_i`), -fe to node j (`contrib_j`), presented to the
+             lane's force rings (hw/stream/forcering.py)
+
+II = 1, no stalls; the stages are known at construction (a dry run) and checked at elaboration. While
+idle, the host reads or writes a word of the a memory (`host_*`, `host_rdata` two cycles later). `sats`:
+the lane's saturation counts per quantity (`quantities`), PipeArith's `saturation_events`.
+"""
+from __future__ import annotations
+
+import numpy as np
+from amaranth.hdl import Module, Mux, Signal, unsigned
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
+
+from ..rtl_fixed import as_shape
+from .bram import BlockRam
+from .forcering import ContributionSignature
+from .kernels import ROM_STAGE, build_element, first_flags
+from .lanerom import LaneRom
+from .nodeword import bits_for, delay
+from .window import NodeReadSignature
+
+SAT_BITS = 8
+
+
+def IssueSignature(slots: int, window_groups: int):
+    return wiring.Signature({"valid": Out(1), "slot": Out(bits_for(slots)), "base": Out(bits_for(window_groups))})
+
+
+class ElementLane(wiring.Component):
+    def __init__(self, cfg, lane: int):
+        self.cfg, self.lane = cfg, lane
+        sch = cfg.schedule
+        self.items = cfg.element_items(lane)
+        self.depth = max(1, sch.element_slots)
+        self.stage = cfg.element_dry.stage
+        self.state_stage = cfg.element_dry.outputs["state_stage"]
+        self.quantities = cfg.element_dry.quantities
+        fmt, Q, Wg = cfg.formats, cfg.node_lanes, sch.window_groups
+        self.a_bits = fmt["a"].width
+        self.has_a = not cfg.params.fixed_a
+        self.pbits = bits_for(self.depth)
+        members = {
+            "busy": In(1),
+            "issue": In(IssueSignature(sch.slots, Wg)),
+            "ring_i": Out(NodeReadSignature(cfg.word, Q, Wg)),
+            "ring_j": Out(NodeReadSignature(cfg.word, Q, Wg)),
+            "contrib_i": Out(ContributionSignature(cfg.dim, fmt["fe"].width, Q, Wg)),
+            "contrib_j": Out(ContributionSignature(cfg.dim, fmt["fe"].width, Q, Wg)),
+            "host_pos": In(self.pbits), "host_wdata": In(self.a_bits), "host_we": In(1),
+            "host_rdata": Out(self.a_bits),
+        }
+        for k, _ in enumerate(self.quantities):
+            members[f"sat{k}"] = Out(SAT_BITS)
+        super().__init__(members)
+
+    def a_memory(self):
+        init = np.asarray(self.cfg.init.get("A", np.zeros(self.cfg.n_elements)))
+        vals = init[self.cfg.order.elements[self.items]] if len(self.items) else []
+        mask = (1 << self.a_bits) - 1
+        return BlockRam(self.a_bits, self.depth, init=[int(v) & mask for v in vals], ram=self.cfg.ram)
+
+    def elaborate(self, platform):
+        m = Module()
+        cfg, p, fmt = self.cfg, self.cfg.params, self.cfg.formats
+        Q, Wg, word = cfg.node_lanes, cfg.schedule.window_groups, cfg.word
+        wb, qb = bits_for(Wg), bits_for(Q)
+        name = f"el{self.lane}"
+        slot = self.issue.slot[:self.pbits]
+        valid0 = Signal(name=f"{name}_valid0")
+        m.d.comb += valid0.eq(self.issue.valid & (self.issue.slot < len(self.items)))
+
+        rom = LaneRom(self.depth, cfg.ram)
+        elements = cfg.order.elements[self.items]
+        ni, nj = cfg.order.ei[self.items], cfg.order.ej[self.items]
+        roles = []
+        for r, nodes in enumerate((ni, nj)):
+            g = rom.add(f"{name}_g{r}", unsigned(wb), (nodes // Q) % Wg)
+            b = rom.add(f"{name}_b{r}", unsigned(qb), nodes % Q)
+            f = rom.add(f"{name}_first{r}", unsigned(1), first_flags(nodes))
+            roles.append((g, b, f))
+
+        def src(q, raw, shape):
+            return rom.add(f"{name}_prm_{q}", shape, np.asarray(raw)[elements])
+
+        # stage 2: window slots from the ROM and the step's base
+        base2 = delay(m, self.issue.base, ROM_STAGE, f"{name}_base")
+        ports = (self.ring_i, self.ring_j)
+        slots2 = []
+        for (g, b, _), port in zip(roles, ports):
+            s2 = Signal(wb, name=f"{name}_slot{len(slots2)}")
+            m.d.comb += [s2.eq(base2 + g), port.addr.eq(s2), port.bank.eq(b)]
+            slots2.append(s2)
+        a_mem = self.a_memory()
+        m.submodules[f"{name}_a"] = a_mem
+        (Xi, Ui), (Xj, Uj) = word.unpack(self.ring_i.data), word.unpack(self.ring_j.data)
+        a_shape = as_shape(fmt["a"])
+        a_raw = a_mem.r_data.as_signed() if a_shape.signed else a_mem.r_data
+        built = build_element(m, p, fmt, cfg.units, valid0, name, src, a_raw, Xi, Xj, Ui, Uj)
+        assert built.stage == self.stage, f"{name}: pipeline stage {built.stage}, the schedule has {self.stage}"
+        assert built.outputs["state_stage"] == self.state_stage
+        ar, s = built.ar, built.stage
+        rom.build(m, f"{name}_rom", slot)
+
+        # contributions at stage s
+        for (g, b, f), s2, port, vals in zip(roles, slots2, (self.contrib_i, self.contrib_j),
+                                            (built.outputs["fe"], built.outputs["fe_neg"])):
+            m.d.comb += [port.valid.eq(ar.valid_at(s)), port.slot.eq(ar.delay(s2, ROM_STAGE, s)),
+                         port.bank.eq(ar.delay(b, ROM_STAGE, s)), port.first.eq(ar.delay(f, ROM_STAGE, s))]
+            for k, v in enumerate(vals):
+                fb = fmt["fe"].width
+                m.d.comb += port.value[k * fb:(k + 1) * fb].eq(ar.at(v, s))
+
+        # the a memory: read at issue, written at its stage; the host's while idle
+        new_a = built.outputs["a"]
+        m.d.comb += a_mem.r_addr.eq(Mux(self.busy, slot, self.host_pos))
+        if self.has_a and new_a is not None:
+            sa = self.state_stage
+            m.d.comb += [a_mem.w_addr.eq(Mux(self.busy, ar.delay(slot, 0, sa), self.host_pos)),
+                         a_mem.w_data.eq(Mux(self.busy, ar.at(new_a, sa), self.host_wdata)),
+                         a_mem.w_en.eq(Mux(self.busy, ar.valid_at(sa), self.host_we))]
+        else:
+            m.d.comb += [a_mem.w_addr.eq(self.host_pos), a_mem.w_data.eq(self.host_wdata),
+                         a_mem.w_en.eq(self.host_we & ~self.busy)]
+        m.d.comb += self.host_rdata.eq(a_mem.r_data)
+        self._saturations(m, ar)
+        return m
+
+    def _saturations(self, m, ar):
+        events = dict(ar.saturation_events())
+        assert sorted(events) == self.quantities, (sorted(events), self.quantities)
+        for k, q in enumerate(self.quantities):
+            m.d.comb += getattr(self, f"sat{k}").eq(events[q])

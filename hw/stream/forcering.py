@@ -1,0 +1,94 @@
+"""`ForceRing`: one lane role's force accumulator, a ring of exact sums with a copy for the node lanes.
+
+Every element lane has one for node i and one for node j, every pair lane one per role. A contribution
+(`add`: the node's window slot and bank, D raw words in the "fe" format) is presented in cycle t, the
+cycle its pipeline stage reads the ring (stage s of the lane); its sum is written at t + RMW (RMW = 2):
+
+  t      the ring word at (slot, bank) is read (block RAM, data at t + 2)
+  t + 1  flag: did the item one ahead (now at t + 2) write this word?  (registered compare)
+  t + 2  old = 0 if this is the lane's first contribution to the node in this step (`first`), else the
+         sum the item one ahead wrote (if it wrote this word), else the one two ahead wrote (if it did),
+         else the word read; new = old + value (exact, `acc_bits` bits per dimension), written into the
+         ring and into segment `bank` of the node lanes' copy (slot `slot`)
+
+The items one and two ahead write in the cycles of this item's read and the next, which the read cannot
+see (and the first of them is undefined on a block RAM): their sums come from registers instead. The
+`first` flag makes a ring that is never cleared: the word a node takes over still holds the sum of the
+node that had the slot before (W nodes earlier), and the schedule guarantees the node lanes read that sum
+before this write (hw/stream/schedule.py). II = 1, no stalls; a sum is in the node copy, readable,
+RMW + 1 cycles after its contribution was presented.
+
+`node_addr` (a slot) reads the node copy: `node_data`, LATENCY = 2 cycles later, holds the Q nodes' sums
+of the group in that slot (segment q: node q of the group, D words of `acc_bits`).
+"""
+from __future__ import annotations
+
+from amaranth.hdl import Cat, Module, Mux, Signal, signed
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
+
+from .bram import LATENCY, BlockRam
+from .nodeword import bits_for, delay
+
+RMW = 2
+
+
+def ContributionSignature(dim: int, fe_bits: int, node_lanes: int, window_groups: int):
+    """A lane's contribution port, from the lane's side."""
+    return wiring.Signature({"valid": Out(1), "slot": Out(bits_for(window_groups)), "bank": Out(bits_for(node_lanes)),
+                             "first": Out(1), "value": Out(dim * fe_bits)})
+
+
+class ForceRing(wiring.Component):
+    def __init__(self, dim: int, fe_bits: int, acc_bits: int, node_lanes: int, window_groups: int,
+                 ram: str = "sim"):
+        if acc_bits < fe_bits:
+            raise ValueError(f"accumulator of {acc_bits} bits narrower than its {fe_bits}-bit contributions")
+        self.D, self.fe_bits, self.acc_bits, self.Q, self.Wg, self.ram = dim, fe_bits, acc_bits, node_lanes, window_groups, ram
+        self.rmw, self.latency = RMW, LATENCY
+        self.qbits, self.wbits = bits_for(node_lanes), bits_for(window_groups)
+        super().__init__({
+            "add": In(ContributionSignature(dim, fe_bits, node_lanes, window_groups)),
+            "node_addr": In(self.wbits),
+            "node_data": Out(node_lanes * dim * acc_bits),
+        })
+
+    def memories(self):
+        """(read-modify-write ring, node lanes' copy)."""
+        ring_depth = self.Wg << (self.qbits if self.Q > 1 else 0)
+        return (BlockRam(self.D * self.acc_bits, ring_depth, ram=self.ram),
+                BlockRam(self.Q * self.D * self.acc_bits, self.Wg, segments=self.Q, ram=self.ram))
+
+    def elaborate(self, platform):
+        m = Module()
+        D, A, F = self.D, self.acc_bits, self.fe_bits
+        ring, copy = self.memories()
+        m.submodules.ring, m.submodules.copy = ring, copy
+        add = self.add
+        word0 = Cat(add.bank, add.slot) if self.Q > 1 else add.slot
+        m.d.comb += ring.r_addr.eq(word0)
+        word1, word2 = delay(m, word0, 1, "word"), delay(m, word0, 2, "word")
+        word3 = delay(m, word2, 1, "word3")
+        en2 = delay(m, add.valid, 2, "valid")
+        en3 = delay(m, en2, 1, "valid3")
+        first2 = delay(m, add.first, 2, "first")
+        value2 = delay(m, add.value, 2, "value")
+        slot2, bank2 = delay(m, add.slot, 2, "slot"), delay(m, add.bank, 2, "bank")
+        # forwarding flags for the item now one stage before the write (registered compares)
+        fwd1, fwd2 = Signal(), Signal()
+        m.d.sync += [fwd1.eq(en2 & (word1 == word2)), fwd2.eq(en3 & (word1 == word3))]
+        sums = []
+        for k in range(D):
+            rd = ring.r_data[k * A:(k + 1) * A].as_signed()
+            last1, last2 = Signal(signed(A), name=f"last1_{k}"), Signal(signed(A), name=f"last2_{k}")
+            new = Signal(signed(A), name=f"sum_{k}")
+            old = Mux(first2, 0, Mux(fwd1, last1, Mux(fwd2, last2, rd)))
+            m.d.comb += new.eq(old + value2[k * F:(k + 1) * F].as_signed())
+            m.d.sync += [last1.eq(new), last2.eq(last1)]
+            sums.append(new)
+        word = Cat(*sums)
+        m.d.comb += [ring.w_addr.eq(word2), ring.w_data.eq(word), ring.w_en.eq(en2),
+                     copy.w_addr.eq(slot2), copy.w_data.eq(word.replicate(self.Q)),
+                     copy.w_en.eq(Cat(*[en2 & (bank2 == q) for q in range(self.Q)])),
+                     copy.r_addr.eq(self.node_addr), self.node_data.eq(copy.r_data)]
+        return m

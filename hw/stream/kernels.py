@@ -1,0 +1,156 @@
+"""The per-item kernels of hw/datapath.py on PipeArith, as the streaming lanes use them.
+
+Each lane kind runs its kernel through `PipeArith` (hw/pipeline.py) with its inputs at fixed stages:
+
+  element  stage 0: issue (ROM and a read); 2: ROM fields and a; 4: x, u of nodes i and j
+           (the window read presented at 2); contributions +fe (i), -fe (j) at `stage`; a at `state_stage`
+  pair     stage 0: issue; 2: ROM fields; 4: x, u of the D + 1 nodes; contributions at `stage`, each
+           zero where the pair's gate is closed (the ring still counts the item: see ForceRing `first`)
+  node     stage 0: retirement (window, force ring and ROM reads); 2: x, u, ROM fields; 3: the exact
+           sum of the force rings; x, u results at `stage`
+
+`dry_run_*` builds a kernel on a throw-away Module to learn its stages and saturating quantities before
+any component is elaborated (the schedule needs them at construction); each lane asserts at elaboration
+that its real pipeline has the same stages.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from amaranth.hdl import Fragment, Module, Mux, Signal
+
+from ..datapath import _node_flags, element_kernel, node_kernel, pair_kernel
+from ..pipeline import PBool, PipeArith
+from ..rtl_fixed import as_shape
+from .bram import LATENCY
+
+ROM_STAGE = LATENCY               # ROM fields (and a) valid at stage 2
+NODE_STAGE = 2 * LATENCY          # x, u at stage 4 (window read presented at stage 2)
+FORCE_STAGE = LATENCY + 1         # node lanes: the sum of the force rings, registered
+
+
+class NodeArith(PipeArith):
+    """PipeArith for node lanes: the step number travels with the node (nodes of two steps share the
+    pipeline as retirement runs into the next period), so a load's time window is a stage-0 condition
+    on the lane's `step` input instead of a constant of the phase."""
+
+    def window(self, step_no, first, end) -> PBool:
+        return PBool((step_no >= first) & (step_no < min(end, (1 << 32) - 1)), 0)
+
+
+@dataclass
+class Built:
+    ar: PipeArith
+    stage: int                 # contribution (element, pair) or result (node) stage
+    outputs: dict              # kind-specific values (see the build functions)
+    params: list = None        # dry runs: the per-item ROM fields the kernel asked for, (name, bits)
+
+    @property
+    def quantities(self) -> list[str]:
+        return sorted({s.quantity for s in self.ar.sat_sources})
+
+
+def _signals(n, shape, name):
+    return [Signal(shape, name=f"{name}{k}") for k in range(n)]
+
+
+def build_element(m, p, fmt, units, valid, name, src, A, Xi, Xj, Ui, Uj) -> Built:
+    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE)
+    with ar:
+        a_in = ar.input(A, "a", ROM_STAGE)
+        node = lambda vs, q: [ar.input(v, q, NODE_STAGE) for v in vs]
+        fe, new_a = element_kernel(ar, p, node(Xi, "x"), node(Xj, "x"), node(Ui, "u"), node(Uj, "u"), a_in)
+        fe_neg = [ar.neg(v) for v in fe]                  # node j's word (saturating, as the model)
+        stage = max(v.stage for v in fe + fe_neg)
+    return Built(ar, stage, {"fe": fe, "fe_neg": fe_neg, "a": new_a,
+                             "state_stage": new_a.stage if new_a is not None else 0})
+
+
+def build_pair(m, p, fmt, units, valid, name, src, kernel, X_roles, U_roles) -> Built:
+    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE)
+    D = p.dim
+    with ar:
+        ins = [[ar.input(v, "x", NODE_STAGE) for v in X_roles[r]] for r in range(D + 1)]
+        ins += [[ar.input(v, "u", NODE_STAGE) for v in U_roles[r]] for r in range(D + 1)]
+        gate, contribs = kernel(ar, p, *ins)
+        stage = max(v.stage for _, v, _ in contribs)
+        cond = ar.delay(gate.cond.sig, gate.cond.stage, stage) if gate.cond.stage is not None else gate.cond.sig
+    roles = [[None] * D for _ in range(D + 1)]
+    for k, v, role in contribs:
+        roles[role][k] = Mux(cond, ar.at(v, stage), 0)
+    return Built(ar, stage, {"roles": roles})
+
+
+def build_node(m, p, fmt, units, valid, name, src, X, U, Fe, step) -> Built:
+    ar = NodeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE)
+    with ar:
+        Xp = [ar.input(v, "x", ROM_STAGE) for v in X]
+        Up = [ar.input(v, "u", ROM_STAGE) for v in U]
+        Fp = [ar.input(v, "fe", FORCE_STAGE) for v in Fe]
+        new_x, new_u = node_kernel(ar, p, Xp, Up, Fp, step, _node_flags(p))
+        stage = max(v.stage for v in new_x + new_u)
+    return Built(ar, stage, {"x": new_x, "u": new_u})
+
+
+def _dry_src(fields):
+    def src(q, raw, shape):
+        sig = Signal(shape, name=f"dry_{q}")
+        fields.append((q, len(sig)))
+        return sig
+    return src
+
+
+def _finish(m):
+    Fragment.get(m, None)           # elaborate the function units too: nothing is left unused
+
+
+def dry_run_element(p, fmt, units) -> Built:
+    m, fields = Module(), []
+    D = p.dim
+    xs, us = as_shape(fmt["x"]), as_shape(fmt["u"])
+    b = build_element(m, p, fmt, units, Signal(), "dry_el", _dry_src(fields), Signal(as_shape(fmt["a"])),
+                      _signals(D, xs, "xi"), _signals(D, xs, "xj"), _signals(D, us, "ui"), _signals(D, us, "uj"))
+    b.ar.saturation_events()
+    _finish(m)
+    b.params = fields
+    return b
+
+
+def dry_run_pair(p, fmt, units) -> Built:
+    m, fields = Module(), []
+    D = p.dim
+    xs, us = as_shape(fmt["x"]), as_shape(fmt["u"])
+    b = build_pair(m, p, fmt, units, Signal(), "dry_pr", _dry_src(fields), pair_kernel,
+                   [_signals(D, xs, f"x{r}_") for r in range(D + 1)], [_signals(D, us, f"u{r}_") for r in range(D + 1)])
+    b.ar.saturation_events()
+    _finish(m)
+    b.params = fields
+    return b
+
+
+def dry_run_node(p, fmt, units, fe_bits: int) -> Built:
+    m, fields = Module(), []
+    D = p.dim
+    xs, us = as_shape(fmt["x"]), as_shape(fmt["u"])
+    from amaranth.hdl import signed
+    b = build_node(m, p, fmt, units, Signal(), "dry_nd", _dry_src(fields), _signals(D, xs, "x"), _signals(D, us, "u"),
+                   _signals(D, signed(fe_bits), "f"), Signal(32))
+    b.ar.saturation_events()
+    _finish(m)
+    b.params = fields
+    return b
+
+
+def first_flags(nodes: np.ndarray) -> np.ndarray:
+    """1 where a node occurs for the first time in `nodes` (a lane role's items in slot order)."""
+    flags = np.zeros(len(nodes), np.int64)
+    if len(nodes):
+        _, idx = np.unique(nodes, return_index=True)
+        flags[idx] = 1
+    return flags
+
+
+def max_count(nodes: np.ndarray) -> int:
+    """The most items of one lane role that touch one node (the accumulator's headroom)."""
+    return int(np.bincount(nodes).max()) if len(nodes) else 1

@@ -1,0 +1,108 @@
+"""`NodeLane`: node lane q integrates node q of every retired group (hw/datapath.py `node_kernel`).
+
+Nodes retire in index order, a whole group (Q nodes, one per lane) at a time, at most one group a cycle,
+when the stream has passed the group's last contribution (hw/stream/schedule.py):
+
+  stage 0    `retire`: the group g, its step number; the window's group port and every force ring's
+             node copy are read at the group's slot (by the core), the lane's ROM at g
+  stage 2    x, u (`node`: this lane's node of the group word), the ROM fields (whether the node exists:
+             the last group may be short; per force ring "this ring holds contributions to this node",
+             which masks the stale words of rings that do not; the kernel's flags and parameters)
+  stage 3    the exact sum of the masked force ring words (`forces`), registered
+  ...        `node_kernel` through PipeArith: loads by the retirement's own step number (retirement
+             runs into the next period, so two steps share the pipeline), floor, friction, mass, gravity
+  `stage`    `store`: x, u written into the node store (bank q, word g)
+
+II = 1, no stalls; stages known at construction (a dry run), checked at elaboration.
+"""
+from __future__ import annotations
+
+import numpy as np
+from amaranth.hdl import Cat, Module, Mux, Signal, signed, unsigned
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
+
+from ..rtl_fixed import tree_sum
+from .element import SAT_BITS
+from .kernels import FORCE_STAGE, ROM_STAGE, build_node
+from .lanerom import LaneRom
+from .nodeword import bits_for
+
+
+def RetireSignature(groups: int):
+    return wiring.Signature({"valid": Out(1), "group": Out(bits_for(groups)), "step": Out(32)})
+
+
+class NodeLane(wiring.Component):
+    def __init__(self, cfg, q: int):
+        self.cfg, self.q = cfg, q
+        sch = cfg.schedule
+        self.groups = sch.groups
+        self.stage = cfg.node_dry.stage
+        self.quantities = cfg.node_dry.quantities
+        self.rings = cfg.rings
+        self.force_bits = [ring.acc_bits for ring in self.rings]
+        self.sum_bits = max(self.force_bits) + bits_for(len(self.rings)) + 1
+        word = cfg.word
+        members = {
+            "retire": In(RetireSignature(sch.groups)),
+            "node": In(word.bits),
+            "forces": In(cfg.dim * sum(self.force_bits)),
+            "store_en": Out(1), "store_group": Out(bits_for(sch.groups)), "store_data": Out(word.bits),
+        }
+        for k, _ in enumerate(self.quantities):
+            members[f"sat{k}"] = Out(SAT_BITS)
+        super().__init__(members)
+
+    def nodes(self) -> np.ndarray:
+        """The new numbers of this lane's nodes, by group (-1: none, past the last node)."""
+        n = np.arange(self.groups) * self.cfg.node_lanes + self.q
+        return np.where(n < self.cfg.n_nodes, n, -1)
+
+    def elaborate(self, platform):
+        m = Module()
+        cfg, p, fmt, D = self.cfg, self.cfg.params, self.cfg.formats, self.cfg.dim
+        name = f"nd{self.q}"
+        nodes = self.nodes()
+        exists = nodes >= 0
+        orig = cfg.order.inv[np.where(exists, nodes, 0)]          # original node numbers
+        valid0 = Signal(name=f"{name}_valid0")
+        last = cfg.n_nodes - (self.groups - 1) * cfg.node_lanes   # nodes in the last group
+        if self.q < last:
+            m.d.comb += valid0.eq(self.retire.valid)
+        else:
+            m.d.comb += valid0.eq(self.retire.valid & (self.retire.group != self.groups - 1))
+        rom = LaneRom(self.groups, cfg.ram)
+        masks = cfg.ring_masks()[np.where(exists, nodes, 0)] * exists[:, None]
+        mask_bits = [rom.add(f"{name}_mask{r}", unsigned(1), masks[:, r]) for r in range(len(self.rings))]
+
+        def src(qty, raw, shape):
+            arr = np.asarray(raw)
+            return rom.add(f"{name}_prm_{qty}", shape, np.where(exists, arr[orig], 0))
+
+        # stage 3: the exact sum of the masked force ring words, per dimension
+        F = []
+        off = 0
+        words = []
+        for bits in self.force_bits:
+            words.append([self.forces[off + k * bits:off + (k + 1) * bits].as_signed() for k in range(D)])
+            off += D * bits
+        for k in range(D):
+            total = tree_sum([Mux(mask_bits[r], words[r][k], 0) for r in range(len(self.rings))])
+            f = Signal(signed(self.sum_bits), name=f"{name}_force{k}")
+            m.d.sync += f.eq(total)
+            F.append(f)
+        X, U = cfg.word.unpack(self.node)
+        built = build_node(m, p, fmt, cfg.units, valid0, name, src, X, U, F, self.retire.step)
+        assert built.stage == self.stage, f"{name}: pipeline stage {built.stage}, the schedule has {self.stage}"
+        ar, s = built.ar, built.stage
+        rom.build(m, f"{name}_rom", self.retire.group)
+        m.d.comb += [self.store_en.eq(ar.valid_at(s)),
+                     self.store_group.eq(ar.delay(self.retire.group, 0, s)),
+                     self.store_data.eq(cfg.word.pack([ar.at(v, s) for v in built.outputs["x"]],
+                                                      [ar.at(v, s) for v in built.outputs["u"]]))]
+        events = dict(ar.saturation_events())
+        assert sorted(events) == self.quantities
+        for k, qty in enumerate(self.quantities):
+            m.d.comb += getattr(self, f"sat{k}").eq(events[qty])
+        return m

@@ -1,0 +1,94 @@
+"""`PairLane`: one topology-pair lane of the streaming core (hw/datapath.py `pair_kernel`).
+
+Item k of the pair stream (sorted by its highest node, hw/stream/order.py) runs in lane k % P at slot
+k // P. Like an element lane with D + 1 roles (the vertex, then the facet's vertices) and no state:
+
+  stage 0    `issue`: slot c; the ROM is read
+  stage 2    per role: window slot, bank, "first contribution of this lane to this node in this step";
+             the role's window read port `rings[r]` gets the slot
+  stage 4    x, u of the D + 1 nodes
+  `stage`    per role the pair force (zero where the pair's gate, d <= eps, is closed: the item still
+             counts as the lane's contribution, so that a ring word's first contribution always writes),
+             presented to the role's force ring (`contribs[r]`)
+
+II = 1, no stalls; stages known at construction (a dry run), checked at elaboration.
+"""
+from __future__ import annotations
+
+import numpy as np
+from amaranth.hdl import Module, Signal, unsigned
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
+
+from ..datapath import pair_kernel
+from .element import SAT_BITS, IssueSignature
+from .forcering import ContributionSignature
+from .kernels import ROM_STAGE, build_pair, first_flags
+from .lanerom import LaneRom
+from .nodeword import bits_for, delay
+from .window import NodeReadSignature
+
+
+class PairLane(wiring.Component):
+    def __init__(self, cfg, lane: int):
+        self.cfg, self.lane = cfg, lane
+        sch = cfg.schedule
+        self.items = cfg.pair_items(lane)
+        self.depth = max(1, sch.pair_slots)
+        self.stage = cfg.pair_dry.stage
+        self.quantities = cfg.pair_dry.quantities
+        D, Q, Wg = cfg.dim, cfg.node_lanes, sch.window_groups
+        self.pbits = bits_for(self.depth)
+        members = {
+            "issue": In(IssueSignature(sch.slots, Wg)),
+            "rings": Out(NodeReadSignature(cfg.word, Q, Wg)).array(D + 1),
+            "contribs": Out(ContributionSignature(D, cfg.formats["fe"].width, Q, Wg)).array(D + 1),
+        }
+        for k, _ in enumerate(self.quantities):
+            members[f"sat{k}"] = Out(SAT_BITS)
+        super().__init__(members)
+
+    def elaborate(self, platform):
+        m = Module()
+        cfg, p, fmt = self.cfg, self.cfg.params, self.cfg.formats
+        D, Q, Wg, word = cfg.dim, cfg.node_lanes, cfg.schedule.window_groups, cfg.word
+        wb, qb = bits_for(Wg), bits_for(Q)
+        name = f"pr{self.lane}"
+        slot = self.issue.slot[:self.pbits]
+        valid0 = Signal(name=f"{name}_valid0")
+        m.d.comb += valid0.eq(self.issue.valid & (self.issue.slot < len(self.items)))
+        rom = LaneRom(self.depth, cfg.ram)
+        pairs = cfg.order.pairs[self.items]
+        base2 = delay(m, self.issue.base, ROM_STAGE, f"{name}_base")
+        roles, X, U = [], [], []
+        for r in range(D + 1):
+            nodes = cfg.order.pair_nodes[self.items, r]
+            g = rom.add(f"{name}_g{r}", unsigned(wb), (nodes // Q) % Wg)
+            b = rom.add(f"{name}_b{r}", unsigned(qb), nodes % Q)
+            f = rom.add(f"{name}_first{r}", unsigned(1), first_flags(nodes))
+            s2 = Signal(wb, name=f"{name}_slot{r}")
+            m.d.comb += [s2.eq(base2 + g), self.rings[r].addr.eq(s2), self.rings[r].bank.eq(b)]
+            roles.append((s2, b, f))
+            Xr, Ur = word.unpack(self.rings[r].data)
+            X.append(Xr)
+            U.append(Ur)
+
+        def src(q, raw, shape):
+            return rom.add(f"{name}_prm_{q}", shape, np.asarray(raw)[pairs])
+
+        built = build_pair(m, p, fmt, cfg.units, valid0, name, src, pair_kernel, X, U)
+        assert built.stage == self.stage, f"{name}: pipeline stage {built.stage}, the schedule has {self.stage}"
+        ar, s = built.ar, built.stage
+        rom.build(m, f"{name}_rom", slot)
+        fb = fmt["fe"].width
+        for r, ((s2, b, f), vals) in enumerate(zip(roles, built.outputs["roles"])):
+            port = self.contribs[r]
+            m.d.comb += [port.valid.eq(ar.valid_at(s)), port.slot.eq(ar.delay(s2, ROM_STAGE, s)),
+                         port.bank.eq(ar.delay(b, ROM_STAGE, s)), port.first.eq(ar.delay(f, ROM_STAGE, s))]
+            for k, v in enumerate(vals):
+                m.d.comb += port.value[k * fb:(k + 1) * fb].eq(v)
+        events = dict(ar.saturation_events())
+        assert sorted(events) == self.quantities
+        for k, q in enumerate(self.quantities):
+            m.d.comb += getattr(self, f"sat{k}").eq(events[q])
+        return m

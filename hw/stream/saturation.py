@@ -1,0 +1,41 @@
+"""`SaturationCounter`: the run's saturation count and the sticky flag per quantity.
+
+Every lane reports, per saturating quantity, how many of its items saturated that quantity in a cycle
+(PipeArith `saturation_events`, registered in the lane). Their sum over lanes is registered
+(`per_cycle`), then added into `count` (saturating at 2^32 - 1): an event is in `count` two cycles after
+its lane register. `flags` bit k (quantity `quantities[k]`, sorted by name as the manifest lists them)
+is set when any lane reports that quantity, and stays set. `clear` zeroes both.
+"""
+from __future__ import annotations
+
+from amaranth.hdl import Cat, Module, Mux, Signal
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
+
+from ..rtl_fixed import tree_sum
+from .element import SAT_BITS
+
+
+class SaturationCounter(wiring.Component):
+    def __init__(self, events: list[str]):
+        """`events`: the quantity of each event input ev0, ev1, ..."""
+        self.events = list(events)
+        self.quantities = sorted(set(self.events))
+        members = {f"ev{k}": In(SAT_BITS) for k in range(len(self.events))}
+        members.update({"clear": In(1), "count": Out(32), "flags": Out(max(1, len(self.quantities)))})
+        super().__init__(members)
+
+    def elaborate(self, platform):
+        m = Module()
+        evs = [getattr(self, f"ev{k}") for k in range(len(self.events))]
+        with m.If(self.clear):
+            m.d.sync += [self.count.eq(0), self.flags.eq(0)]
+        if not evs:
+            return m
+        per_cycle = Signal(16)
+        m.d.sync += per_cycle.eq(tree_sum(evs))
+        hits = Cat(*[Cat(*[ev != 0 for ev, q in zip(evs, self.events) if q == qq]).any() for qq in self.quantities])
+        new = self.count + per_cycle
+        with m.If(~self.clear):
+            m.d.sync += [self.count.eq(Mux(new >> 32 != 0, 0xFFFFFFFF, new[:32])), self.flags.eq(self.flags | hits)]
+        return m

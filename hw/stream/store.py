@@ -1,0 +1,62 @@
+"""`NodeStore`: the node state (x, u), stored once, in Q banks.
+
+Node n (of the streaming order) lives in bank n % Q at word n // Q, its group: one word of every bank
+holds one group of Q nodes. Each bank is a `BlockRam` of Gs words (read latency 2) whose word has one
+segment per node field, so that the host can write a single x_k or u_k.
+
+While busy, the fill reads group `rd_addr` (all banks, `rd_data` two cycles later) and the node lanes
+write group `wr_addr` (bank q when `wr_en[q]`). While idle, the host reads or writes field `h_field`
+of the node in bank `h_bank`, word `h_addr`; `h_rdata` (the field, raw) two cycles after the address.
+One read and one write per bank and cycle: the fill reads group by group and the node lanes retire
+group by group, each at most one a cycle (hw/stream/schedule.py).
+"""
+from __future__ import annotations
+
+from amaranth.hdl import Cat, Module, Mux, Signal
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
+
+from .bram import LATENCY, BlockRam
+from .nodeword import NodeWord, bits_for, delay, segment
+
+
+class NodeStore(wiring.Component):
+    def __init__(self, word: NodeWord, node_lanes: int, groups: int, init_words=None, ram: str = "sim"):
+        self.word, self.Q, self.groups, self.ram = word, node_lanes, groups, ram
+        self.latency = LATENCY
+        self.gbits, self.qbits, self.fbits = bits_for(groups), bits_for(node_lanes), bits_for(word.fields)
+        self.init_words = init_words          # per bank: list of node words (ints), or None
+        super().__init__({
+            "busy": In(1),
+            "rd_addr": In(self.gbits), "rd_data": Out(node_lanes * word.bits),
+            "wr_addr": In(self.gbits), "wr_data": In(node_lanes * word.bits), "wr_en": In(node_lanes),
+            "h_addr": In(self.gbits), "h_bank": In(self.qbits), "h_field": In(self.fbits),
+            "h_wdata": In(word.field_bits), "h_we": In(1), "h_rdata": Out(word.field_bits),
+        })
+
+    def banks(self):
+        return [BlockRam(self.word.bits, self.groups, segments=self.word.fields, ram=self.ram,
+                         init=None if self.init_words is None else self.init_words[q]) for q in range(self.Q)]
+
+    def elaborate(self, platform):
+        m = Module()
+        w, Q = self.word, self.Q
+        rdata = []
+        for q, bank in enumerate(self.banks()):
+            m.submodules[f"bank{q}"] = bank
+            host_hit = self.h_we & (self.h_bank == q)
+            field_en = Cat(*[host_hit & (self.h_field == f) for f in range(w.fields)])
+            m.d.comb += [
+                bank.r_addr.eq(Mux(self.busy, self.rd_addr, self.h_addr)),
+                bank.w_addr.eq(Mux(self.busy, self.wr_addr, self.h_addr)),
+                bank.w_data.eq(Mux(self.busy, segment(self.wr_data, q, w.bits, Q),
+                                   self.h_wdata.replicate(w.fields))),
+                bank.w_en.eq(Mux(self.busy, self.wr_en[q].replicate(w.fields), field_en)),
+            ]
+            rdata.append(bank.r_data)
+        m.d.comb += self.rd_data.eq(Cat(*rdata))
+        bank_d = delay(m, self.h_bank, LATENCY, "h_bank")
+        field_d = delay(m, self.h_field, LATENCY, "h_field")
+        node = segment(self.rd_data, bank_d, w.bits, Q)
+        m.d.comb += self.h_rdata.eq(segment(node, field_d, w.field_bits, w.fields))
+        return m

@@ -1,0 +1,60 @@
+"""`NodeWindow`: the ring of nodes the streams read, one copy per read port, all written by the fill.
+
+The ring holds Wg groups (W = Wg Q nodes, Wg a power of two). Virtual group v = k Gs + g (group g of
+step k; the index runs on across steps) lives in slot v mod Wg. The fill writes a whole group word
+(`fill`, one a cycle) into every copy; each read port reads its own copy. A node read port (`reads`)
+presents a slot and the node's bank (n % Q) and gets that node's word LATENCY = 2 cycles later; a group
+read port (`groups`: the node lanes, which retire a whole group) gets the group word. The schedule
+guarantees that every read sees the group its slot holds for that read's step (hw/stream/schedule.py).
+"""
+from __future__ import annotations
+
+from amaranth.hdl import Module
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
+
+from .bram import LATENCY, BlockRam
+from .nodeword import NodeWord, bits_for, delay, segment
+
+
+def NodeReadSignature(word: NodeWord, node_lanes: int, window_groups: int):
+    """A node read port, from the reader's side: slot and bank out, the node word in (2 cycles later)."""
+    return wiring.Signature({"addr": Out(bits_for(window_groups)), "bank": Out(bits_for(node_lanes)),
+                             "data": In(word.bits)})
+
+
+class NodeWindow(wiring.Component):
+    def __init__(self, word: NodeWord, node_lanes: int, window_groups: int, node_reads: int,
+                 group_reads: int, ram: str = "sim"):
+        self.word, self.Q, self.Wg, self.ram = word, node_lanes, window_groups, ram
+        self.latency = LATENCY
+        self.n_reads, self.n_groups = node_reads, group_reads
+        wb, gw = bits_for(window_groups), node_lanes * word.bits
+        members = {"fill_addr": In(wb), "fill_data": In(gw), "fill_en": In(1)}
+        if node_reads:
+            members["reads"] = In(NodeReadSignature(word, node_lanes, window_groups)).array(node_reads)
+        if group_reads:
+            members["groups"] = In(wiring.Signature({"addr": Out(wb), "data": In(gw)})).array(group_reads)
+        super().__init__(members)
+
+    def copies(self) -> int:
+        return self.n_reads + self.n_groups
+
+    def copy(self):
+        return BlockRam(self.Q * self.word.bits, self.Wg, ram=self.ram)
+
+    def elaborate(self, platform):
+        m = Module()
+        ports = [(p, True) for p in (self.reads if self.n_reads else [])]
+        ports += [(p, False) for p in (self.groups if self.n_groups else [])]
+        for k, (port, single) in enumerate(ports):
+            ring = self.copy()
+            m.submodules[f"copy{k}"] = ring
+            m.d.comb += [ring.w_addr.eq(self.fill_addr), ring.w_data.eq(self.fill_data),
+                         ring.w_en.eq(self.fill_en), ring.r_addr.eq(port.addr)]
+            if single:
+                bank = delay(m, port.bank, LATENCY, f"bank{k}")
+                m.d.comb += port.data.eq(segment(ring.r_data, bank, self.word.bits, self.Q))
+            else:
+                m.d.comb += port.data.eq(ring.r_data)
+        return m
