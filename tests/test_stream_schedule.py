@@ -1,0 +1,214 @@
+"""The streaming core's static schedule (hw/stream/schedule.py), checked by an independent event replay.
+
+The replay below knows only the hardware's timing conventions (restated here, not imported): item k of
+a stream runs in lane k % P at slot k // P, its window read is presented 2 cycles after issue (block RAM
+latency), its contribution is written RMW = 2 cycles after its pipeline stage; a read presented in the
+cycle of a write to the same word is undefined. It takes from the schedule only its decisions (the fill
+and retirement cycle of every group, the period T, the window Wg, the prologue A0), replays a few steps
+of every memory's writes and reads, and checks: every window read (items', node lanes') sees the group
+of its own step, every store read sees the previous step's result, every element's a its previous
+step's value, every contribution is written before its node retires and no other node's write lands in
+its ring word in between (so a ring needs no clearing), one fill, one retirement and one item per lane
+per cycle. T - 1 (or Wg / 2) must break something: the schedule's T and window are the smallest.
+"""
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+
+import numpy as np
+import pytest
+
+from golden import mesh as meshlib
+from golden.scene import builtin_names
+from hw.stream.order import stream_order
+from hw.stream.schedule import BandwidthError, Latencies, build_schedule
+
+from conftest import system
+
+MEM, RMW = 2, 2          # block RAM read latency; a force ring word is written RMW cycles after its read
+
+
+class Violation(AssertionError):
+    pass
+
+
+def _latest(log, cycle):
+    """The tag of the last write before `cycle` in a sorted [(cycle, tag)] log (None: none); a write in
+    `cycle` itself makes the read undefined."""
+    tag = None
+    for c, t in log:
+        if c == cycle:
+            raise Violation(f"read in cycle {cycle} of a word written in that cycle")
+        if c > cycle:
+            break
+        tag = t
+    return tag
+
+
+def replay(order, P, Q, lat, T, Wg, fill, retire, A0, steps=3):
+    """Replay `steps` steps; raises Violation naming the first broken rule."""
+    N, D1 = order.n_nodes, order.pair_nodes.shape[1] if len(order.pair_nodes) else 0
+    Gs = -(-N // Q)
+    t0 = lambda k: A0 + k * T
+    # one fill and one retirement a cycle, in group order within a step
+    for name, times in (("fill", fill), ("retire", retire)):
+        cycles = [t0(k) + int(times[g]) for k in range(steps) for g in range(Gs)]
+        if len(set(cycles)) != len(cycles) or cycles != sorted(cycles):
+            raise Violation(f"{name}: not one group a cycle in order")
+    # streams: (stage, [(lane, slot, nodes per role)])
+    streams = [("el", lat.element, [np.stack([order.ei, order.ej], 1)[k] for k in range(len(order.ei))])]
+    if D1:
+        streams.append(("pr", lat.pair, list(order.pair_nodes)))
+    for name, _, items in streams:
+        for lane in range(P):
+            cyc = [t0(k) + i // P for k in range(steps) for i in range(lane, len(items), P)]
+            if len(set(cyc)) != len(cyc):
+                raise Violation(f"{name} lane {lane}: two items in one cycle")
+    # the window
+    win = defaultdict(list)
+    for k in range(steps):
+        for g in range(Gs):
+            win[(k * Gs + g) % Wg].append((t0(k) + int(fill[g]) + MEM, (k, g)))
+    for log in win.values():
+        log.sort()
+
+    def window_read(k, n, cycle, who):
+        g = n // Q
+        got = _latest(win[(k * Gs + g) % Wg], cycle)
+        if got != (k, g):
+            raise Violation(f"{who} of node {n} in step {k} (cycle {cycle}) sees group {got}, not {(k, g)}")
+
+    # force rings: per (stream, lane, role) and word: [(write cycle, (step, node))]
+    rings = defaultdict(list)
+    for name, stage, items in streams:
+        for k in range(steps):
+            for i, nodes in enumerate(items):
+                lane, c = i % P, i // P
+                for role, n in enumerate(nodes):
+                    n = int(n)
+                    window_read(k, n, t0(k) + c + MEM, f"{name} item {i} role {role}")
+                    word = (n % Q, (k * Gs + n // Q) % Wg)
+                    rings[(name, lane, role, word)].append((t0(k) + c + stage + RMW, (k, n)))
+    for log in rings.values():
+        log.sort()
+    by_owner = defaultdict(list)
+    for key, log in rings.items():
+        for c, owner in log:
+            by_owner[owner].append((key, c))
+    # retirement: window read, every contribution in, no foreign write in between
+    for k in range(steps):
+        for n in range(N):
+            R = t0(k) + int(retire[n // Q])
+            window_read(k, n, R, "node lane read")
+            for key in {key for key, _ in by_owner[(k, n)]}:
+                log = rings[key]
+                mine = [c for c, o in log if o == (k, n)]
+                if max(mine) >= R:
+                    raise Violation(f"node {n} step {k} retires in cycle {R}, a contribution lands in {max(mine)}")
+                foreign = [(c, o) for c, o in log if min(mine) <= c <= R and o != (k, n)]
+                if foreign:
+                    raise Violation(f"ring {key[:3]}: node {n} step {k}'s word is overwritten by {foreign[0]}")
+    # node store: the fill of step k reads what step k - 1 retired
+    for g in range(Gs):
+        writes = sorted((t0(k) + int(retire[g]) + lat.node, k) for k in range(steps))
+        for k in range(steps):
+            got = _latest(writes, t0(k) + int(fill[g]))
+            if got != (k - 1 if k else None):
+                raise Violation(f"fill of group {g} step {k} reads the store version {got}")
+    # a: read at issue of step k, written at the state stage of step k - 1
+    if len(order.ei):
+        for k in range(1, steps):
+            if t0(k - 1) + lat.element_state >= t0(k):
+                raise Violation("an element's a is read before the previous step wrote it")
+    return True
+
+
+def check(order, P, Q, lat, steps=3):
+    sch = build_schedule(order, P, Q, lat)
+    args = (order, P, Q, lat)
+    replay(*args, sch.period, sch.window_groups, sch.fill, sch.retire, sch.issue_start, steps)
+    C = max(-(-len(order.ei) // P), -(-len(order.pair_nodes) // P), 1)
+    assert sch.period >= C and sch.slots == C
+    # the period and the window are the smallest these fill / retirement cycles allow
+    with pytest.raises(Violation):
+        replay(*args, sch.period - 1, sch.window_groups, sch.fill, sch.retire, sch.issue_start, steps)
+    if sch.window_groups > 1:
+        with pytest.raises(Violation):
+            replay(*args, sch.period, sch.window_groups // 2, sch.fill, sch.retire, sch.issue_start, steps)
+    return sch
+
+
+LATENCIES = [Latencies(element=76, element_state=68, node=16, pair=62),     # the wide preset's pipelines
+             Latencies(element=9, element_state=3, node=4, pair=11),
+             Latencies(element=140, element_state=140, node=40, pair=150)]
+
+
+def _random_mesh(rng, dim):
+    if dim == 2:
+        m = meshlib.rectangle(1.0, 1.0, int(rng.integers(2, 9)), int(rng.integers(2, 9)))
+    else:
+        m = meshlib.box((1.0, 1.0, 1.0), tuple(int(v) for v in rng.integers(1, 4, 3)))
+    shuffle = rng.permutation(len(m.nodes))                 # a scrambled numbering: RCM must undo it
+    edges = shuffle[m.edges]
+    pairs = shuffle[meshlib.topology_pairs(m.cells, m.nodes)] if rng.random() < 0.7 else None
+    return len(m.nodes), edges, pairs
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_random_meshes(seed):
+    rng = np.random.default_rng(seed)
+    dim = 2 if seed % 3 else 3
+    N, edges, pairs = _random_mesh(rng, dim)
+    order = stream_order(N, edges, pairs)
+    P, Q = int(rng.choice([1, 2, 3, 5])), int(rng.integers(1, 4))
+    check(order, P, Q, LATENCIES[seed % len(LATENCIES)])
+
+
+SCENES = [n for n in builtin_names() if system(n).collision is None]
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_builtin_scenes(name):
+    sys_ = system(name)
+    pairs = sys_.topology.pairs if sys_.topology is not None else None
+    order = stream_order(sys_.n_nodes, sys_.edges, pairs)
+    for P, Q in ((1, 1), (2, 2), (3, 1)):
+        check(order, P, Q, LATENCIES[0])
+
+
+@pytest.mark.parametrize("Q", [2, 3])
+def test_benchmark_square(Q):
+    from sim.bench import square_system
+    sys_ = square_system(10_000)
+    order = stream_order(sys_.n_nodes, sys_.edges)
+    assert order.bandwidth == 87                       # reverse Cuthill-McKee (the review's figure)
+    sch = check(order, 6, Q, Latencies(element=76, element_state=68, node=16), steps=2)
+    assert sch.period <= 1.05 * math.ceil(sys_.n_elements / 6)
+
+
+def test_bandwidth_beyond_the_window_is_refused():
+    from sim.bench import square_system
+    sys_ = square_system(10_000)
+    order = stream_order(sys_.n_nodes, sys_.edges)
+    with pytest.raises(BandwidthError, match=r"bandwidth 87 .*largest window .* 16 groups of 2 nodes \(32 nodes\)"):
+        build_schedule(order, 6, 2, LATENCIES[0], max_window_groups=16)
+    assert issubclass(BandwidthError, ValueError)
+
+
+def test_replay_catches_a_broken_schedule():
+    """The checker itself: a fill one cycle late, a retirement one cycle early are caught."""
+    sys_ = system("gravity-2d-nonlinear")
+    order = stream_order(sys_.n_nodes, sys_.edges, sys_.topology.pairs)
+    lat = LATENCIES[0]
+    sch = build_schedule(order, 2, 2, lat)
+    args = (order, 2, 2, lat, sch.period, sch.window_groups)
+    late = sch.fill.copy()
+    g = int(np.argmax(sch.fill))                       # the last group is filled just in time
+    late[g] += 1
+    with pytest.raises(Violation, match="sees group|written in that cycle"):
+        replay(*args, late, sch.retire, sch.issue_start)
+    early = sch.retire.copy()
+    early[0] -= 1
+    with pytest.raises(Violation):
+        replay(*args, sch.fill, early, sch.issue_start)
