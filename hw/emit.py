@@ -80,13 +80,19 @@ def full_featured(sys):
                                gravity=gravity, floor=floor, topology=topology, collision=collision, loads=loads)
 
 
-def build(bt: BitTrue, lanes: int = 1, node_lanes: int = 1):
-    """(Core, elaborated Verilog text, manifest dict) for a bit-true model's scene and formats."""
+def build(bt: BitTrue, lanes: int = 1, node_lanes: int = 1, core: str = "phased", ram: str = "sim"):
+    """(Core, elaborated Verilog text, manifest dict) for a bit-true model's scene and formats. `core`:
+    "phased" (hw/core.py), "stream" (hw/stream/) or "auto" (stream unless collisions); `ram`: the
+    streaming core's block RAMs, "sim" (inferred) or "ecp5" (DP16KD instances)."""
     from amaranth.back import verilog
-    cfg = CoreConfig.of(bt, lanes, node_lanes)
-    core = Core(cfg)
-    text = verilog.convert(core, name=TOP, emit_src=False)
-    return core, text, manifest(bt, core)
+    from .stream import build_core, resolve_core
+    kind = resolve_core(bt.params, core)
+    c = build_core(bt, lanes, node_lanes, kind, ram)
+    text = verilog.convert(c, name=TOP, emit_src=False)
+    if kind == "stream":
+        from .stream.manifest import manifest as stream_manifest
+        return c, text, stream_manifest(bt, c, SPECIALISATION, TOP)
+    return c, text, manifest(bt, c)
 
 
 def manifest(bt: BitTrue, core: Core) -> dict:
@@ -98,6 +104,7 @@ def manifest(bt: BitTrue, core: Core) -> dict:
     mems = core.memories
     return {
         "top": TOP,
+        "core": "phased",
         "scene": bt.sys.name,
         "preset": bt.formats.preset.name,
         "dim": cfg.dim,
@@ -125,10 +132,10 @@ def manifest(bt: BitTrue, core: Core) -> dict:
     }
 
 
-def write(bt: BitTrue, out_dir, lanes: int = 1, node_lanes: int = 1) -> dict:
+def write(bt: BitTrue, out_dir, lanes: int = 1, node_lanes: int = 1, core: str = "phased", ram: str = "sim") -> dict:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    core, text, man = build(bt, lanes, node_lanes)
+    core, text, man = build(bt, lanes, node_lanes, core, ram)
     (out / f"{TOP}.v").write_text(text)
     man["verilog"] = f"{TOP}.v"
     man["verilog_modules"] = sorted(set(line.split()[1].split("(")[0] for line in text.splitlines()

@@ -159,33 +159,41 @@ def bench_fixed(n_elements: int, min_seconds: float = 1.0, preset: str = "wide")
 def bench_fpga(sys: System, preset: str = "narrow", lanes: int = 1, node_lanes: int = 1,
                simulator: str = "verilator", steps: int = 2, fmax_mhz: float | None = None,
                device: str = "ecp5-85k", min_seconds: float = 1.0, range_steps: int | None = None,
-               log=None) -> dict:
+               log=None, core: str = "auto") -> dict:
     """Modelled FPGA throughput of `sys`'s specialised core and the golden model's measured throughput.
 
-    Cycles per step come from the HDL simulation (the core's CYCLES register over `steps` steps from the
-    initial state, whose read-back must equal the bit-true model's). With `fmax_mhz` None the core is
-    placed and routed for `device` (once per Verilog: DIR/synth-DEVICE/synth.json beside the build).
+    Cycles per step come from the HDL simulation: the core's CYCLES register over a run of 1 step and a
+    run of `steps` steps after it (their difference over steps - 1: the streaming core's period, without
+    its prologue and epilogue), from the initial state; the read-back must equal the bit-true model's.
+    With `fmax_mhz` None the core is placed and routed for `device` (once per Verilog:
+    DIR/synth-DEVICE/synth.json beside the build; the streaming core with its DP16KD instances).
     """
+    from hw import emit
     from hw.bittrue import BitTrue
     from .hdlsim import emit_core, run_job
     from .synth import synthesize
     say = log or (lambda m: None)
     say(f"{sys.name}: formats (preset {preset})")
     bt = BitTrue(sys, preset, range_steps=range_steps)
-    core_dir, man, drv = emit_core(bt, lanes, node_lanes)
-    say(f"{simulator}: {steps} steps of the core in {core_dir}")
+    from hw.stream import resolve_core
+    kind = resolve_core(bt.params, core)
+    core_dir, man, drv = emit_core(bt, lanes, node_lanes, core=kind)
+    steps = max(2, steps)
+    say(f"{simulator}: runs of 1 and {steps} steps of the {kind} core in {core_dir}")
     st = bt.initial_state()
-    out = run_job(simulator, core_dir, drv, drv.load_words(st.X, st.U, st.A, 0), [steps])
-    for _ in range(steps):
-        bt.step(st)
-    X, U, A = out["frames"][0][:3]
-    if not (all(np.array_equal(a, b) for a, b in zip(X + U, st.X + st.U)) and np.array_equal(A, st.A)):
-        raise RuntimeError(f"{simulator}: the core's state after {steps} steps differs from the bit-true model")
-    cycles = out["cycles"][0] / steps
+    out = run_job(simulator, core_dir, drv, drv.load_words(st.X, st.U, st.A, 0), [1, steps])
+    for n, frame in zip((1, steps), out["frames"]):
+        for _ in range(n):
+            bt.step(st)
+        X, U, A = frame[:3]
+        if not (all(np.array_equal(a, b) for a, b in zip(X + U, st.X + st.U)) and np.array_equal(A, st.A)):
+            raise RuntimeError(f"{simulator}: the core's state after {st.step} steps differs from the bit-true model")
+    cycles = (out["cycles"][1] - out["cycles"][0]) / (steps - 1)
     row = dict(backend="fpga", scene=sys.name, elements=sys.n_elements, nodes=sys.n_nodes, preset=preset,
-               lanes=lanes, node_lanes=node_lanes, simulator=simulator, cycles_per_step=cycles,
-               cycles_per_step_schedule=man["cycles_per_step"]["value"],
-               simulator_cycles_per_s=out["cycles"][0] / max(out["wall_s"], 1e-9), core_dir=str(core_dir))
+               lanes=lanes, node_lanes=node_lanes, core=kind, simulator=simulator, cycles_per_step=cycles,
+               cycles_per_step_schedule=man["cycles_per_step"]["value"], run_cycles=out["cycles"],
+               ideal_cycles_per_step=-(-sys.n_elements // lanes),
+               simulator_cycles_per_s=sum(out["cycles"]) / max(out["wall_s"], 1e-9), core_dir=str(core_dir))
     if fmax_mhz is None:
         synth_dir = core_dir / f"synth-{device}"
         cached = synth_dir / "synth.json"
@@ -194,7 +202,11 @@ def bench_fpga(sys: System, preset: str = "narrow", lanes: int = 1, node_lanes: 
             res = json.loads(cached.read_text())
         else:
             say(f"place and route for {device} (Yosys + nextpnr; tens of minutes for large cores)")
-            res = synthesize(core_dir / f"{man['top']}.v", man["top"], synth_dir, device=device,
+            synth_src = core_dir
+            if kind == "stream":                       # synthesis takes the DP16KD instances
+                synth_src = core_dir / "ecp5"
+                emit.write(bt, synth_src, lanes, node_lanes, core=kind, ram="ecp5")
+            res = synthesize(synth_src / f"{man['top']}.v", man["top"], synth_dir, device=device,
                              progress=log is not None)
         fmax_mhz, source = res["fmax_mhz"], f"measured: nextpnr-ecp5 on {device} ({synth_dir})"
         row["resources"] = {k: res[k] for k in ("luts", "flip_flops", "mult18x18", "block_rams")}

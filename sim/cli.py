@@ -74,7 +74,7 @@ def _check_square_fits(n_elements: int) -> None:
         raise UsageError(why)
 
 
-def _simulate(sys_, backend: str, steps, every, progress=True, preset="wide", lanes=1, node_lanes=1):
+def _simulate(sys_, backend: str, steps, every, progress=True, preset="wide", lanes=1, node_lanes=1, core="auto"):
     """Run a backend; returns (Run, extra run-file arrays)."""
     from golden.model import simulate
     if backend not in BACKENDS:
@@ -89,11 +89,11 @@ def _simulate(sys_, backend: str, steps, every, progress=True, preset="wide", la
         if backend == "amaranth":
             from sim.hwsim import simulate_amaranth
             run, raws, bt, info = simulate_amaranth(sys_, preset, steps=steps, every=every, progress=progress,
-                                                    lanes=lanes, node_lanes=node_lanes)
+                                                    lanes=lanes, node_lanes=node_lanes, core=core)
         elif backend in ("icarus", "verilator"):
             from sim.hdlsim import simulate_hdl
             run, raws, bt, info = simulate_hdl(sys_, backend, preset, steps=steps, every=every, progress=progress,
-                                               lanes=lanes, node_lanes=node_lanes)
+                                               lanes=lanes, node_lanes=node_lanes, core=core)
         else:
             run, raws, bt = simulate_fixed(sys_, preset, steps=steps, every=every, progress=progress)
         warn_stagnation(bt)
@@ -126,7 +126,7 @@ def cmd_simulate(args) -> int:
     refuse_if_unstable(sys_, args.force)
     _check_frames_fit(sys_, args.steps, args.every)
     run, extra = _simulate(sys_, args.backend, args.steps, args.every, preset=args.preset,
-                           lanes=args.lanes, node_lanes=args.node_lanes)
+                           lanes=args.lanes, node_lanes=args.node_lanes, core=args.core)
     runfile.save(args.out, {**runfile.run_arrays(sys_, run, args.backend), **extra})
     steps = int(round(run.t[-1] / sys_.dt))
     print(f"{sys_.name}: {steps} steps of {sys_.dt:g} s "
@@ -138,9 +138,9 @@ def cmd_verilog(args) -> int:
     """Emit the scene's specialised core as Verilog plus manifest.json."""
     from hw import emit
     bt = _hardware_model(args)
-    man = emit.write(bt, args.out, lanes=args.lanes, node_lanes=args.node_lanes)
+    man = emit.write(bt, args.out, lanes=args.lanes, node_lanes=args.node_lanes, core=args.core)
     cps = man["cycles_per_step"]
-    print(f"wrote {args.out}/{man['verilog']} ({len(man['verilog_modules'])} modules) and manifest.json")
+    print(f"wrote {args.out}/{man['verilog']} ({len(man['verilog_modules'])} modules, {man['core']} core) and manifest.json")
     print(f"  units: {', '.join(u['unit'] for u in man['units_present'])}")
     print(f"  left out: {', '.join(u['unit'] for u in man['units_left_out']) or 'nothing'}")
     print(f"  {cps['value']} cycles per step = {cps['formula']} (P = {cps['P']}, Q = {cps['Q']}); "
@@ -175,7 +175,7 @@ def cmd_synth(args) -> int:
     from sim.synth import synthesize
     out = Path(args.out)
     bt = _hardware_model(args)
-    man = emit.write(bt, out, lanes=args.lanes, node_lanes=args.node_lanes)
+    man = emit.write(bt, out, lanes=args.lanes, node_lanes=args.node_lanes, core=args.core, ram="ecp5")
     r = synthesize(out / man["verilog"], man["top"], out, device=args.device, clock_mhz=args.clock_mhz,
                    progress=True, place_and_route=args.pnr)
     r.update(scene=man["scene"], preset=man["preset"], full_featured=args.full, lanes=man["lanes"],
@@ -218,7 +218,7 @@ def cmd_bench(args) -> int:
     scene = _load_system(args.scene) if args.scene else None
     fpga = {}
     if args.backend == "fpga":
-        fpga = dict(preset=args.preset or "narrow", lanes=args.lanes, node_lanes=args.node_lanes,
+        fpga = dict(preset=args.preset or "narrow", lanes=args.lanes, node_lanes=args.node_lanes, core=args.core,
                     simulator=args.simulator, steps=args.hdl_steps, fmax_mhz=args.fmax_mhz, device=args.device,
                     log=None if args.json else (lambda m: print(f"  {m}", flush=True)))
     elif any(v is not None for v in (args.preset, args.fmax_mhz)) or args.lanes != 1 or args.node_lanes != 1:
@@ -298,12 +298,12 @@ def cmd_run(args) -> int:
     print(f"      max position error against golden: {err:.2e} of the object size, "
           f"{int(raws['saturations'][-1])} saturations")
     print(f"[4/{n}] Verilog and manifest", flush=True)
-    man = emit.write(bt, out / "verilog")
+    man = emit.write(bt, out / "verilog", core="auto")
     print(f"      {out / 'verilog' / man['verilog']}: {man['cycles_per_step']['value']} cycles per step, "
           f"left out: {', '.join(u['unit'] for u in man['units_left_out']) or 'nothing'}")
     steps = min(args.hdl_steps, sys_.n_steps)
     print(f"[5/{n}] Icarus Verilog (cocotb): the first {steps} steps, checked bit for bit", flush=True)
-    core_dir, _, drv = emit_core(bt)
+    core_dir, _, drv = emit_core(bt, core="auto")
     st = bt.initial_state()
     every = max(1, steps // 4)
     at = frame_steps(steps, every)
@@ -331,7 +331,7 @@ def cmd_run(args) -> int:
         print(f"[7/{n}] synthesis for ECP5-85k (preset narrow: one 18x18 multiplier per product)", flush=True)
         with np.errstate(over="ignore", invalid="ignore"):
             nb = BitTrue(sys_, "narrow")
-        nm = emit.write(nb, out / "synth")
+        nm = emit.write(nb, out / "synth", core="auto", ram="ecp5")
         r = synthesize(out / "synth" / nm["verilog"], nm["top"], out / "synth", clock_mhz=100.0)
         print(f"      {r['luts']} LUTs, {r['flip_flops']} FFs, {r['mult18x18']} multipliers, {r['block_rams']} "
               f"block RAMs, Fmax {r['fmax_mhz']:.1f} MHz -> {out / 'synth' / 'report.md'}")
@@ -383,6 +383,9 @@ def _peak_frame(sys_, run) -> int:
 def _lane_args(s):
     s.add_argument("--lanes", type=_positive_int, default=1, help="hardware: element (and pair) lanes P (default 1)")
     s.add_argument("--node-lanes", type=_positive_int, default=1, help="hardware: node lanes Q (default 1)")
+    s.add_argument("--core", choices=("auto", "phased", "stream"), default="auto",
+                   help="hardware: the streaming core (hw/stream/) or the phased one (hw/core.py); default auto: "
+                        "streaming unless the scene has collisions")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -29,15 +29,20 @@ def build_root() -> Path:
     return Path(os.environ.get("RHEO_BUILD", "build")) / "hdl"
 
 
-def emit_core(bt: BitTrue, lanes=1, node_lanes=1, root: Path | None = None):
-    """Emit the core's Verilog into a directory named after its hash; returns (dir, manifest, driver)."""
-    core, text, man = emit.build(bt, lanes, node_lanes)
+def emit_core(bt: BitTrue, lanes=1, node_lanes=1, root: Path | None = None, core: str = "phased",
+              ram: str = "sim"):
+    """Emit the core's Verilog into a directory named after its hash; returns (dir, manifest, driver).
+    A core with DP16KD instances (ram "ecp5") gets the DP16KD model beside it (simulators need it)."""
+    core, text, man = emit.build(bt, lanes, node_lanes, core, ram)
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
     d = (root or build_root()) / f"{file_stem(bt.sys.name)}-{digest}"
     d.mkdir(parents=True, exist_ok=True)
     v = d / f"{emit.TOP}.v"
     if not v.exists() or v.read_text() != text:
         v.write_text(text)
+    if ram == "ecp5":
+        from hw.stream.bram import DP16KD_MODEL
+        (d / DP16KD_MODEL.name).write_text(DP16KD_MODEL.read_text())
     drv = HostDriver.for_map(core.cfg.host_map, core.cycles_per_step)
     return d, man, drv
 
@@ -53,7 +58,8 @@ def run_job(simulator: str, core_dir: Path, drv: HostDriver, load_words, frames,
         result = Path(tmp) / "result.npz"
         np.savez(job, **drv.to_job(), load_words=np.array(load_words, np.int64),
                  frames=np.array(frames, np.int64), reset_after=reset_after)
-        run_cocotb(simulator=simulator, verilog_sources=[core_dir / f"{emit.TOP}.v"], toplevel=emit.TOP,
+        models = [p for p in [core_dir / "dp16kd.v"] if p.is_file()]
+        run_cocotb(simulator=simulator, verilog_sources=[core_dir / f"{emit.TOP}.v", *models], toplevel=emit.TOP,
                    test_module="sim.cocotb_core", test_dir=SIM_DIR.parent, build_dir=core_dir / simulator,
                    extra_env={"RHEO_JOB": str(job), "RHEO_RESULT": str(result),
                               "PYTHONPATH": os.pathsep.join([str(SIM_DIR.parent), os.environ.get("PYTHONPATH", "")])},
@@ -80,10 +86,10 @@ class _Replay:
 
 
 def simulate_hdl(sys: System, simulator: str, preset="wide", steps=None, every=None, progress=False,
-                 lanes=1, node_lanes=1, bittrue: BitTrue | None = None):
+                 lanes=1, node_lanes=1, bittrue: BitTrue | None = None, core: str = "phased"):
     """Run the scene's Verilog on a simulator; returns (Run, raw frames, BitTrue, info)."""
     bt = bittrue or BitTrue(sys, preset, range_steps=max(sys.n_steps, steps or 0))
-    core_dir, man, drv = emit_core(bt, lanes, node_lanes)
+    core_dir, man, drv = emit_core(bt, lanes, node_lanes, core=core)
     n_steps = sys.n_steps if steps is None else int(steps)
     at = frame_steps(n_steps, max(1, sys.every if every is None else int(every)))
     runs = np.diff(np.concatenate([[0], at])).astype(int)

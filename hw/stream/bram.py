@@ -30,7 +30,7 @@ from amaranth.lib import wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
-__all__ = ["BlockRam", "LATENCY", "RAM_VARIANTS", "DP16KD_MODEL", "plan_blocks"]
+__all__ = ["BlockRam", "LATENCY", "RAM_VARIANTS", "DP16KD_MODEL", "plan_blocks", "ram_record"]
 
 LATENCY = 2
 RAM_VARIANTS = ("sim", "ecp5")
@@ -63,6 +63,12 @@ def plan_blocks(width: int, depth: int, segments: int = 1):
             best = cand
     _, _, _, w, d, rows, cols = best
     return w, d, rows, cols
+
+
+def ram_record(name: str, width: int, depth: int, segments: int = 1) -> dict:
+    """A memory inventory entry: name, depth, width and the DP16KD blocks of the "ecp5" variant."""
+    _, _, rows, cols = plan_blocks(width, depth, segments)
+    return {"name": name, "depth": depth, "width": width, "dp16kd": rows * cols}
 
 
 class BlockRam(wiring.Component):

@@ -26,7 +26,7 @@ from amaranth.hdl import Cat, Module
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In
 
-from .bram import LATENCY
+from .bram import LATENCY, ram_record
 from .config import StreamConfig
 from .control import Control
 from .element import ElementLane
@@ -83,42 +83,26 @@ class StreamCore(wiring.Component):
 
     def memories(self) -> list[dict]:
         """Every BlockRam of the core: name, depth, width, DP16KD blocks of the ECP5 variant."""
-        out = []
-
-        def add(name, ram):
-            out.append({"name": name, "depth": ram.depth, "width": ram.width, "dp16kd": ram.blocks()})
-        for q, bank in enumerate(self.store.banks()):
-            add(f"store_bank{q}", bank)
-        for k in range(self.window.copies()):
-            add(f"window_copy{k}", self.window.copy())
+        out = self.store.rams() + self.window.rams()
         for ring, info in zip(self.rings, self.cfg.rings):
-            rmw, copy = ring.memories()
-            add(f"ring_{info.name}", rmw)
-            add(f"ring_{info.name}_node_copy", copy)
+            out += ring.rams(info.name)
         for lane in self.elements:
-            add(f"el{lane.lane}_a", lane.a_memory())
-        for name, ram in self._rom_shapes():
-            add(name, ram)
-        return out
+            out += lane.rams()
+        return out + self._roms()
 
-    def _rom_shapes(self):
-        from .bram import BlockRam
+    def _roms(self) -> list[dict]:
+        """The lanes' and the control's ROMs: widths from the dry runs' per-item fields."""
         cfg, sch = self.cfg, self.schedule
         wb, qb = bits_for(sch.window_groups), bits_for(cfg.node_lanes)
         out = []
         el_bits = 2 * (wb + qb + 1) + sum(b for _, b in cfg.element_dry.params)
-        for lane in self.elements:
-            out.append((f"el{lane.lane}_rom", BlockRam(el_bits, lane.depth, writable=False)))
+        out += [ram_record(f"el{lane.lane}_rom", el_bits, lane.depth) for lane in self.elements]
         if self.pairs:
             pr_bits = (cfg.dim + 1) * (wb + qb + 1) + sum(b for _, b in cfg.pair_dry.params)
-            for lane in self.pairs:
-                out.append((f"pr{lane.lane}_rom", BlockRam(pr_bits, lane.depth, writable=False)))
+            out += [ram_record(f"pr{lane.lane}_rom", pr_bits, lane.depth) for lane in self.pairs]
         nd_bits = len(cfg.rings) + sum(b for _, b in cfg.node_dry.params)
-        for lane in self.nodes:
-            out.append((f"nd{lane.q}_rom", BlockRam(max(1, nd_bits), sch.groups, writable=False)))
-        out += [("fill_phases", BlockRam(1, sch.period, writable=False)),
-                ("retire_phases", BlockRam(1, sch.period, writable=False))]
-        return out
+        out += [ram_record(f"nd{lane.q}_rom", max(1, nd_bits), sch.groups) for lane in self.nodes]
+        return out + [ram_record("fill_phases", 1, sch.period), ram_record("retire_phases", 1, sch.period)]
 
     def elaborate(self, platform):
         m = Module()

@@ -24,7 +24,7 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
 from ..rtl_fixed import as_shape
-from .bram import BlockRam
+from .bram import BlockRam, ram_record
 from .forcering import ContributionSignature
 from .kernels import ROM_STAGE, build_element, first_flags
 from .lanerom import LaneRom
@@ -64,6 +64,9 @@ class ElementLane(wiring.Component):
         for k, _ in enumerate(self.quantities):
             members[f"sat{k}"] = Out(SAT_BITS)
         super().__init__(members)
+
+    def rams(self) -> list[dict]:
+        return [ram_record(f"el{self.lane}_a", self.a_bits, self.depth)]
 
     def a_memory(self):
         init = np.asarray(self.cfg.init.get("A", np.zeros(self.cfg.n_elements)))

@@ -27,7 +27,7 @@ from amaranth.hdl import Cat, Module, Mux, Signal, signed
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from .bram import LATENCY, BlockRam
+from .bram import LATENCY, BlockRam, ram_record
 from .nodeword import bits_for, delay
 
 RMW = 2
@@ -53,11 +53,18 @@ class ForceRing(wiring.Component):
             "node_data": Out(node_lanes * dim * acc_bits),
         })
 
+    def _shapes(self):
+        """(width, depth, segments) of the read-modify-write ring and of the node lanes' copy."""
+        ring_depth = self.Wg << (self.qbits if self.Q > 1 else 0)
+        return (self.D * self.acc_bits, ring_depth, 1), (self.Q * self.D * self.acc_bits, self.Wg, self.Q)
+
+    def rams(self, name: str) -> list[dict]:
+        (w1, d1, s1), (w2, d2, s2) = self._shapes()
+        return [ram_record(f"ring_{name}", w1, d1, s1), ram_record(f"ring_{name}_node_copy", w2, d2, s2)]
+
     def memories(self):
         """(read-modify-write ring, node lanes' copy)."""
-        ring_depth = self.Wg << (self.qbits if self.Q > 1 else 0)
-        return (BlockRam(self.D * self.acc_bits, ring_depth, ram=self.ram),
-                BlockRam(self.Q * self.D * self.acc_bits, self.Wg, segments=self.Q, ram=self.ram))
+        return tuple(BlockRam(w, d, segments=s, ram=self.ram) for w, d, s in self._shapes())
 
     def elaborate(self, platform):
         m = Module()

@@ -16,7 +16,7 @@ from amaranth.hdl import Cat, Module, Mux, Signal
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from .bram import LATENCY, BlockRam
+from .bram import LATENCY, BlockRam, ram_record
 from .nodeword import NodeWord, bits_for, delay, segment
 
 
@@ -33,6 +33,9 @@ class NodeStore(wiring.Component):
             "h_addr": In(self.gbits), "h_bank": In(self.qbits), "h_field": In(self.fbits),
             "h_wdata": In(word.field_bits), "h_we": In(1), "h_rdata": Out(word.field_bits),
         })
+
+    def rams(self) -> list[dict]:
+        return [ram_record(f"store_bank{q}", self.word.bits, self.groups, self.word.fields) for q in range(self.Q)]
 
     def banks(self):
         return [BlockRam(self.word.bits, self.groups, segments=self.word.fields, ram=self.ram,

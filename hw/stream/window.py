@@ -13,7 +13,7 @@ from amaranth.hdl import Module
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from .bram import LATENCY, BlockRam
+from .bram import LATENCY, BlockRam, ram_record
 from .nodeword import NodeWord, bits_for, delay, segment
 
 
@@ -39,6 +39,9 @@ class NodeWindow(wiring.Component):
 
     def copies(self) -> int:
         return self.n_reads + self.n_groups
+
+    def rams(self) -> list[dict]:
+        return [ram_record(f"window_copy{k}", self.Q * self.word.bits, self.Wg) for k in range(self.copies())]
 
     def copy(self):
         return BlockRam(self.Q * self.word.bits, self.Wg, ram=self.ram)

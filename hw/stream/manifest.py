@@ -1,0 +1,66 @@
+"""The manifest of a streaming core (`rheo verilog --core stream`): units, formats, memories with their
+DP16KD budget, the schedule, the saturation flags and the host interface with the renumbering."""
+from __future__ import annotations
+
+from amaranth.hdl import Fragment, Shape
+from amaranth.lib.memory import Memory
+
+
+def unit_memories(core) -> list[dict]:
+    """Memories inside the function units (1/sqrt seed ROMs, damper tables): inferred, not BlockRams."""
+    frag = Fragment.get(core, None)
+    out = []
+
+    def walk(f, path):
+        for n, (sub, name, _) in enumerate(f.subfragments):
+            where = f"{path}.{name if name is not None else f'U${n}'}" if path else str(name)
+            for mem in sub.origins or ():
+                if isinstance(mem, Memory) and ("rsqrt" in where or "inverse" in where):
+                    out.append({"name": where, "depth": mem.depth, "width": Shape.cast(mem.shape).width})
+            walk(sub, where)
+    walk(frag, "")
+    return out
+
+
+def manifest(bt, core, specialisation, top: str) -> dict:
+    cfg, sch = core.cfg, core.schedule
+    feats = cfg.features()
+    present = [{"unit": u, "what": what} for u, need, what in specialisation if need(feats)]
+    absent = [{"unit": u, "what": what} for u, need, what in specialisation if not need(feats)]
+    mems = core.memories()
+    units = unit_memories(core)
+    E, N, Pn = cfg.n_elements, cfg.n_nodes, cfg.n_pairs
+    host = cfg.host_map.to_dict()
+    host["node_order"] = "reverse Cuthill-McKee: node n is node_numbering[n] of the stream; slot = its % Q, word = its // Q"
+    host["node_numbering"] = [int(v) for v in cfg.order.perm]
+    host["element_position"] = [int(v) for v in cfg.order.element_position()]
+    return {
+        "top": top,
+        "core": "stream",
+        "scene": bt.sys.name,
+        "preset": bt.formats.preset.name,
+        "dim": cfg.dim,
+        "nodes": N, "elements": E, "pairs": Pn, "collision_pairs": 0,
+        "lanes": {"element_lanes_P": cfg.lanes, "pair_lanes": cfg.lanes if Pn else 0, "collision_lanes": 0,
+                  "node_lanes_Q": cfg.node_lanes},
+        "ram": cfg.ram,
+        "features": {k: (bool(v) if not isinstance(v, int) or isinstance(v, bool) else v) for k, v in feats.items()},
+        "units_present": present,
+        "units_left_out": absent,
+        "function_units": {name: u.to_dict() for name, u in cfg.units.items()},
+        "formats": bt.formats.to_dict(),
+        "hardware_units": bt.units.to_dict(),
+        "memories": mems + units,
+        "memory_bits": int(sum(m["depth"] * m["width"] for m in mems + units)),
+        "block_rams_dp16kd": int(sum(m["dp16kd"] for m in mems)),
+        "cycles_per_step": {
+            "formula": "T = max(ceil(E/P), ceil(pairs/P), the schedule's read-after-write bounds); a run of n steps "
+                       "takes A0 + (n - 1) T + drain + 1 cycles",
+            "E": E, "pairs": Pn, "collision_pairs": 0, "N": N, "P": cfg.lanes, "Q": cfg.node_lanes,
+            "value": sch.period, "run_cycles_1": sch.run_cycles(1),
+        },
+        "schedule": sch.to_dict(),
+        "saturation_flags": core.sat_quantities,
+        "constant_saturations": core.const_saturations,
+        "host_interface": host,
+    }
