@@ -57,7 +57,8 @@ def replay(order, P, Q, lat, T, Wg, fill, retire, A0, steps=3):
         if len(set(cycles)) != len(cycles) or cycles != sorted(cycles):
             raise Violation(f"{name}: not one group a cycle in order")
     # streams: (stage, [(lane, slot, nodes per role)])
-    streams = [("el", lat.element, [np.stack([order.ei, order.ej], 1)[k] for k in range(len(order.ei))])]
+    # element lanes accumulate by node: ring 0 the lower node of each element, ring 1 the higher
+    streams = [("el", lat.element, list(np.sort(np.stack([order.ei, order.ej], 1), axis=1)))]
     if D1:
         streams.append(("pr", lat.pair, list(order.pair_nodes)))
     for name, _, items in streams:

@@ -25,12 +25,15 @@ class NotStreamable(ValueError):
 
 @dataclass(frozen=True)
 class RingInfo:
-    """One force ring: lane kind ("el" or "pr"), lane, role, accumulator bits, and its items' nodes."""
+    """One force ring: lane kind ("el" or "pr"), lane, role, accumulator bits, and its items' nodes.
+    Element lanes' roles are 0: the lower node, 1: the higher node of each element, whose contributions
+    come in runs (`runs`: a RunSum instead of a ForceRing); pair lanes' are the pair's roles."""
     kind: str
     lane: int
     role: int
     acc_bits: int
     nodes: np.ndarray = field(repr=False)       # new node numbers of the lane's items, in slot order
+    runs: bool = False
 
     @property
     def name(self) -> str:
@@ -102,8 +105,9 @@ class StreamConfig:
         out = []
         for lane in range(self.lanes):
             items = self.element_items(lane)
-            for role, nodes in enumerate((self.order.ei[items], self.order.ej[items])):
-                out.append(RingInfo("el", lane, role, fe + max_count(nodes).bit_length() + 1, nodes))
+            ei, ej = self.order.ei[items], self.order.ej[items]
+            for role, nodes in enumerate((np.minimum(ei, ej), np.maximum(ei, ej))):
+                out.append(RingInfo("el", lane, role, fe + max_count(nodes).bit_length() + 1, nodes, role == 1))
         if self.n_pairs:
             for lane in range(self.lanes):
                 items = self.pair_items(lane)

@@ -30,7 +30,7 @@ from .bram import LATENCY, ram_record
 from .config import StreamConfig
 from .control import Control
 from .element import ElementLane
-from .forcering import ForceRing
+from .forcering import ForceRing, RunSum
 from .hostport import HostPort, HostSignature
 from .node import NodeLane
 from .nodeword import bits_for, delay, segment
@@ -56,7 +56,8 @@ class StreamCore(wiring.Component):
         reads = 2 * P + (D + 1) * len(self.pairs)
         self.window = NodeWindow(word, Q, sch.window_groups, reads, 1, ram)
         fe = cfg.formats["fe"].width
-        self.rings = [ForceRing(D, fe, ring.acc_bits, Q, sch.window_groups, ram) for ring in cfg.rings]
+        self.rings = [(RunSum if ring.runs else ForceRing)(D, fe, ring.acc_bits, Q, sch.window_groups, ram)
+                      for ring in cfg.rings]
         self.nodes = [NodeLane(cfg, q) for q in range(Q)]
         lanes = self.elements + self.pairs + self.nodes
         self.saturation = SaturationCounter([q for lane in lanes for q in lane.quantities])
@@ -136,7 +137,7 @@ class StreamCore(wiring.Component):
             m.submodules[f"el{lane.lane}"] = lane
             m.d.comb += [lane.busy.eq(ctl.busy), lane.host_pos.eq(hp.elem_pos), lane.host_wdata.eq(hp.elem_wdata),
                          lane.host_we.eq(hp.elem_we[lane.lane]), hp.elem_rdata[lane.lane].eq(lane.host_rdata)]
-            ports += [(lane.ring_i, lane.contrib_i), (lane.ring_j, lane.contrib_j)]
+            ports += [(lane.ring_i, lane.contrib_lo), (lane.ring_j, lane.contrib_hi)]
         for lane in self.pairs:
             m.submodules[f"pr{lane.lane}"] = lane
             ports += [(lane.rings[r], lane.contribs[r]) for r in range(D + 1)]

@@ -4,13 +4,15 @@ Item k of the element stream runs in lane k % P at slot k // P of every step (hw
 
   stage 0    `issue`: slot c (and the step's window base): the lane's ROM and its a memory are read
   stage 2    ROM fields (the window slots of nodes i and j: (base + g) mod Wg for their groups g, their
-             banks, "first contribution of this lane to this node in this step" per role, the per-element
-             parameters) and a; the window read ports `ring_i`, `ring_j` get the slots
+             banks; whether i is the higher node; "first contribution of this lane to this node in this
+             step" for the lower and the higher node, "last" for the higher; the per-element parameters)
+             and a; the window read ports `ring_i`, `ring_j` get the slots
   stage 4    x, u of nodes i and j from the window
   ...        hw/datapath.py `element_kernel` through PipeArith (hw/stream/kernels.py), one stage per
              operation; the new a is written back at its stage (`state_stage`)
-  `stage`    contributions: +fe to node i (`contrib_i`), -fe to node j (`contrib_j`), presented to the
-             lane's force rings (hw/stream/forcering.py)
+  `stage`    contributions: +fe to node i, -fe to node j, presented by node: the lower node's to the
+             lane's ForceRing (`contrib_lo`), the higher node's to its RunSum (`contrib_hi`: the stream is
+             sorted by higher node, so a lane's contributions to it come in runs; hw/stream/forcering.py)
 
 II = 1, no stalls; the stages are known at construction (a dry run) and checked at elaboration. While
 idle, the host reads or writes a word of the a memory (`host_*`, `host_rdata` two cycles later). `sats`:
@@ -26,7 +28,7 @@ from amaranth.lib.wiring import In, Out
 from ..rtl_fixed import as_shape
 from .bram import BlockRam, ram_record
 from .forcering import ContributionSignature
-from .kernels import ROM_STAGE, build_element, first_flags
+from .kernels import ROM_STAGE, build_element, first_flags, last_flags
 from .lanerom import LaneRom
 from .nodeword import bits_for, delay
 from .window import NodeReadSignature
@@ -56,8 +58,8 @@ class ElementLane(wiring.Component):
             "issue": In(IssueSignature(sch.slots, Wg)),
             "ring_i": Out(NodeReadSignature(cfg.word, Q, Wg)),
             "ring_j": Out(NodeReadSignature(cfg.word, Q, Wg)),
-            "contrib_i": Out(ContributionSignature(cfg.dim, fmt["fe"].width, Q, Wg)),
-            "contrib_j": Out(ContributionSignature(cfg.dim, fmt["fe"].width, Q, Wg)),
+            "contrib_lo": Out(ContributionSignature(cfg.dim, fmt["fe"].width, Q, Wg)),
+            "contrib_hi": Out(ContributionSignature(cfg.dim, fmt["fe"].width, Q, Wg)),
             "host_pos": In(self.pbits), "host_wdata": In(self.a_bits), "host_we": In(1),
             "host_rdata": Out(self.a_bits),
         }
@@ -91,8 +93,12 @@ class ElementLane(wiring.Component):
         for r, nodes in enumerate((ni, nj)):
             g = rom.add(f"{name}_g{r}", unsigned(wb), (nodes // Q) % Wg)
             b = rom.add(f"{name}_b{r}", unsigned(qb), nodes % Q)
-            f = rom.add(f"{name}_first{r}", unsigned(1), first_flags(nodes))
-            roles.append((g, b, f))
+            roles.append((g, b))
+        swap = rom.add(f"{name}_i_high", unsigned(1), ni > nj)          # node i is the higher node
+        lo, hi = np.minimum(ni, nj), np.maximum(ni, nj)
+        first_lo = rom.add(f"{name}_first_lo", unsigned(1), first_flags(lo))
+        first_hi = rom.add(f"{name}_first_hi", unsigned(1), first_flags(hi))
+        last_hi = rom.add(f"{name}_last_hi", unsigned(1), last_flags(hi))
 
         def src(q, raw, shape):
             return rom.add(f"{name}_prm_{q}", shape, np.asarray(raw)[elements])
@@ -101,7 +107,7 @@ class ElementLane(wiring.Component):
         base2 = delay(m, self.issue.base, ROM_STAGE, f"{name}_base")
         ports = (self.ring_i, self.ring_j)
         slots2 = []
-        for (g, b, _), port in zip(roles, ports):
+        for (g, b), port in zip(roles, ports):
             s2 = Signal(wb, name=f"{name}_slot{len(slots2)}")
             m.d.comb += [s2.eq(base2 + g), port.addr.eq(s2), port.bank.eq(b)]
             slots2.append(s2)
@@ -116,14 +122,21 @@ class ElementLane(wiring.Component):
         ar, s = built.ar, built.stage
         rom.build(m, f"{name}_rom", slot)
 
-        # contributions at stage s
-        for (g, b, f), s2, port, vals in zip(roles, slots2, (self.contrib_i, self.contrib_j),
-                                            (built.outputs["fe"], built.outputs["fe_neg"])):
-            m.d.comb += [port.valid.eq(ar.valid_at(s)), port.slot.eq(ar.delay(s2, ROM_STAGE, s)),
-                         port.bank.eq(ar.delay(b, ROM_STAGE, s)), port.first.eq(ar.delay(f, ROM_STAGE, s))]
-            for k, v in enumerate(vals):
-                fb = fmt["fe"].width
-                m.d.comb += port.value[k * fb:(k + 1) * fb].eq(ar.at(v, s))
+        # contributions at stage s, by node: +fe to i, -fe to j; the lower one's to the ForceRing, the
+        # higher one's to the RunSum
+        at = lambda v: ar.delay(v, ROM_STAGE, s)
+        sw = at(swap)
+        (slot_i, slot_j), (b_i, b_j) = [at(v) for v in slots2], [at(b) for _, b in roles]
+        fb = fmt["fe"].width
+        fe_i = [ar.at(v, s) for v in built.outputs["fe"]]
+        fe_j = [ar.at(v, s) for v in built.outputs["fe_neg"]]
+        for port, high, first, last in ((self.contrib_lo, False, first_lo, None), (self.contrib_hi, True, first_hi, last_hi)):
+            take_j = ~sw if high else sw                 # the higher node is j unless i is higher
+            m.d.comb += [port.valid.eq(ar.valid_at(s)), port.slot.eq(Mux(take_j, slot_j, slot_i)),
+                         port.bank.eq(Mux(take_j, b_j, b_i)), port.first.eq(at(first)),
+                         port.last.eq(at(last) if last is not None else 0)]
+            for k in range(cfg.dim):
+                m.d.comb += port.value[k * fb:(k + 1) * fb].eq(Mux(take_j, fe_j[k], fe_i[k]))
 
         # the a memory: read at issue, written at its stage; the host's while idle
         new_a = built.outputs["a"]

@@ -34,9 +34,10 @@ RMW = 2
 
 
 def ContributionSignature(dim: int, fe_bits: int, node_lanes: int, window_groups: int):
-    """A lane's contribution port, from the lane's side."""
+    """A lane's contribution port, from the lane's side: `first` / `last`: the lane's first / last
+    contribution to this node in this step (`last` is used by RunSum only)."""
     return wiring.Signature({"valid": Out(1), "slot": Out(bits_for(window_groups)), "bank": Out(bits_for(node_lanes)),
-                             "first": Out(1), "value": Out(dim * fe_bits)})
+                             "first": Out(1), "last": Out(1), "value": Out(dim * fe_bits)})
 
 
 class ForceRing(wiring.Component):
@@ -97,5 +98,57 @@ class ForceRing(wiring.Component):
         m.d.comb += [ring.w_addr.eq(word2), ring.w_data.eq(word), ring.w_en.eq(en2),
                      copy.w_addr.eq(slot2), copy.w_data.eq(word.replicate(self.Q)),
                      copy.w_en.eq(Cat(*[en2 & (bank2 == q) for q in range(self.Q)])),
+                     copy.r_addr.eq(self.node_addr), self.node_data.eq(copy.r_data)]
+        return m
+
+
+class RunSum(wiring.Component):
+    """A lane role whose contributions to a node arrive as one run of consecutive items: an element
+    lane's higher node (the element stream is sorted by higher node, so a lane's items with the same
+    higher node follow one another). The run is summed in a register, and its total is written once, at
+    the run's last item (`last`), into the node lanes' copy: no read-modify-write ring. Same ports and
+    timing as ForceRing: the total of a run whose last item is presented in cycle t is written at
+    t + RMW, readable from t + RMW + 1.
+
+      t      sum = (0 if `first` else the running sum) + value; the running sum takes it
+      t + 1  the sum, registered
+      t + 2  written into segment `bank` of slot `slot` of the node copy if the item was a run's last
+    """
+
+    def __init__(self, dim: int, fe_bits: int, acc_bits: int, node_lanes: int, window_groups: int,
+                 ram: str = "sim"):
+        self.D, self.fe_bits, self.acc_bits, self.Q, self.Wg, self.ram = dim, fe_bits, acc_bits, node_lanes, window_groups, ram
+        self.rmw, self.latency = RMW, LATENCY
+        super().__init__({
+            "add": In(ContributionSignature(dim, fe_bits, node_lanes, window_groups)),
+            "node_addr": In(bits_for(window_groups)),
+            "node_data": Out(node_lanes * dim * acc_bits),
+        })
+
+    def _shape(self):
+        return self.Q * self.D * self.acc_bits, self.Wg, self.Q
+
+    def rams(self, name: str) -> list[dict]:
+        return [ram_record(f"runsum_{name}_node_copy", *self._shape())]
+
+    def elaborate(self, platform):
+        m = Module()
+        D, A, F = self.D, self.acc_bits, self.fe_bits
+        w, d, s = self._shape()
+        copy = BlockRam(w, d, segments=s, ram=self.ram)
+        m.submodules.copy = copy
+        add = self.add
+        sums = []
+        for k in range(D):
+            acc, new = Signal(signed(A), name=f"acc_{k}"), Signal(signed(A), name=f"sum_{k}")
+            m.d.comb += new.eq(Mux(add.first, 0, acc) + add.value[k * F:(k + 1) * F].as_signed())
+            with m.If(add.valid):
+                m.d.sync += acc.eq(new)
+            sums.append(new)
+        word2 = delay(m, Cat(*sums), RMW, "sum")
+        write2 = delay(m, add.valid & add.last, RMW, "write")
+        slot2, bank2 = delay(m, add.slot, RMW, "slot"), delay(m, add.bank, RMW, "bank")
+        m.d.comb += [copy.w_addr.eq(slot2), copy.w_data.eq(word2.replicate(self.Q)),
+                     copy.w_en.eq(Cat(*[write2 & (bank2 == q) for q in range(self.Q)])),
                      copy.r_addr.eq(self.node_addr), self.node_data.eq(copy.r_data)]
         return m

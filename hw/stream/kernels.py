@@ -151,6 +151,15 @@ def first_flags(nodes: np.ndarray) -> np.ndarray:
     return flags
 
 
+def last_flags(nodes: np.ndarray) -> np.ndarray:
+    """1 where a node occurs for the last time in `nodes`."""
+    flags = np.zeros(len(nodes), np.int64)
+    if len(nodes):
+        _, idx = np.unique(nodes[::-1], return_index=True)
+        flags[len(nodes) - 1 - idx] = 1
+    return flags
+
+
 def max_count(nodes: np.ndarray) -> int:
     """The most items of one lane role that touch one node (the accumulator's headroom)."""
     return int(np.bincount(nodes).max()) if len(nodes) else 1
