@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from amaranth.hdl import Cat, Const, Signal
+from amaranth.hdl import Array, Cat, Const, Signal
 
 from ..rtl_fixed import as_shape
 
@@ -87,9 +87,10 @@ def delay(m, value, cycles: int, name: str):
 
 
 def segment(value, index, width: int, count: int):
-    """Part `index` (an Amaranth value or int) of `value`, made of `count` parts of `width` bits."""
+    """Part `index` (an Amaranth value or int) of `value`, made of `count` parts of `width` bits: a
+    multiplexer (not a shift by index * width, in which Yosys may see a multiplier)."""
     if isinstance(index, int):
         return value[index * width:(index + 1) * width]
     if count == 1:
         return value[:width]
-    return value.word_select(index, width)
+    return Array([value[k * width:(k + 1) * width] for k in range(count)])[index]
