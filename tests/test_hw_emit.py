@@ -21,7 +21,7 @@ def emitted(tmp_path_factory):
     out = {}
     for name in ("press-2d-rheological", "press-2d-viscoelastic", "press-2d-plastic", "gravity-2d-linear"):
         d = tmp_path_factory.mktemp(name)
-        r = _rheo("verilog", name, "--out", str(d))
+        r = _rheo("verilog", name, "--out", str(d), "--core", "phased")
         assert r.returncode == 0, r.stderr
         out[name] = (d, json.loads((d / "manifest.json").read_text()))
     return out
@@ -81,7 +81,8 @@ def test_verilog_passes_verilator_lint(emitted, name):
 
 
 def test_lanes_are_parameters(tmp_path):
-    r = _rheo("verilog", "gravity-2d-linear", "--out", str(tmp_path), "--lanes", "2", "--node-lanes", "3")
+    r = _rheo("verilog", "gravity-2d-linear", "--out", str(tmp_path), "--lanes", "2", "--node-lanes", "3",
+              "--core", "phased")
     assert r.returncode == 0, r.stderr
     man = json.loads((tmp_path / "manifest.json").read_text())
     assert man["lanes"]["element_lanes_P"] == 2 and man["lanes"]["node_lanes_Q"] == 3
