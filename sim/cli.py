@@ -156,6 +156,9 @@ def _hardware_model(args):
     sys_ = _load_system(args.scene)
     if args.full:
         sys_ = emit.full_featured(sys_)
+    if getattr(args, "core", "auto") == "stream" and sys_.collision is not None:
+        from hw.stream import resolve_core          # refused before the range analysis
+        resolve_core(sys_, "stream")
     print(f"{sys_.name}: range analysis and formats (preset {args.preset})", flush=True)
     with np.errstate(over="ignore", invalid="ignore"):
         bt = BitTrue(sys_, args.preset)
