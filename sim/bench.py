@@ -48,6 +48,25 @@ def square_system(n_elements: int) -> System:
                   ["square"], np.array([0.0, -9.81]), 1e-5, 50, 1)
 
 
+def box_system(n_elements: int) -> System:
+    """A 3D box of about n_elements elements (n x n x n cubes of 6 tetrahedra, about 7.3 n^3 elements),
+    rheological, under gravity, its bottom layer pinned: the benchmark square's 3D counterpart."""
+    def edges(k):
+        return 7 * k ** 3 + 9 * k ** 2 + 3 * k          # edges of the Kuhn-subdivided k^3 box
+    n = min(range(1, 200), key=lambda k: abs(edges(k) - n_elements))
+    m = meshlib.box((1.0, 1.0, 1.0), (n, n, n))
+    mat = PRESETS["rheological"]
+    E, N = len(m.edges), len(m.nodes)
+    l0 = np.linalg.norm(m.nodes[m.edges[:, 1]] - m.nodes[m.edges[:, 0]], axis=1)
+    elem = ElementParams.build(np.full(E, mat["k1"]), np.full(E, mat["c1"]), np.full(E, mat["a_min"]),
+                               np.full(E, mat["a_max"]), mat["a0"] * l0, np.full(E, mat["c_min"]),
+                               np.full(E, mat["c_max"]), np.full(E, mat["f1"]), np.full(E, mat["f2"]))
+    pinned = m.nodes[:, 2] == 0.0
+    return System(f"box-{E}", 3, m.nodes, np.zeros_like(m.nodes), np.full(N, 1e-3), pinned, m.edges,
+                  np.full(E, mat["a0"]), elem, m.cells, np.zeros(N, np.int64), np.zeros(len(m.cells), np.int64),
+                  ["box"], np.array([0.0, 0.0, -9.81]), 1e-5, 50, 1)
+
+
 def _timed(stepper, st, sys: System, min_seconds: float, **labels) -> dict:
     """Step until at least min_seconds (and 5 steps) have passed; throughput figures."""
     for _ in range(3):                       # warm-up: caches, first-call costs

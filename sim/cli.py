@@ -41,19 +41,20 @@ def _positive_int(text: str) -> int:
 
 
 def _load_system(ref: str):
-    """A built-in scene by name, a scene file by path, or `square:N`: the benchmark's generated square of
-    about N elements (sim/bench.py)."""
+    """A built-in scene by name, a scene file by path, `square:N`: the benchmark's generated square of
+    about N elements, or `box:N`: its 3D counterpart (sim/bench.py)."""
     from golden.scene import compile_scene, load_scene
-    if ref.startswith("square:"):
-        from sim import bench
-        try:
-            n = int(ref[len("square:"):])
-        except ValueError:
-            n = 0
-        if not 10 <= n <= 10_000_000:
-            raise UsageError(f"'{ref}': square:N takes a whole number of elements N in 10..10000000")
-        _check_square_fits(n)
-        return bench.square_system(n)
+    for kind in ("square", "box"):
+        if ref.startswith(kind + ":"):
+            from sim import bench
+            try:
+                n = int(ref[len(kind) + 1:])
+            except ValueError:
+                n = 0
+            if not 10 <= n <= 10_000_000:
+                raise UsageError(f"'{ref}': {kind}:N takes a whole number of elements N in 10..10000000")
+            _check_square_fits(n)
+            return bench.square_system(n) if kind == "square" else bench.box_system(n)
     return compile_scene(load_scene(ref))
 
 
