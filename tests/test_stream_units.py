@@ -235,38 +235,38 @@ def test_force_ring_sums_exactly_with_forwarding_and_first_flags(kind):
 # ------------------------------------------------------------------------------------------ SaturationCounter
 
 def test_saturation_counter_counts_and_flags():
-    events = ["x", "u", "x", "fe"]
+    events = ["x", "u", "x", "fe"] * 3                    # more reports than one chunk
     dut = SaturationCounter(events)
     rng = np.random.default_rng(4)
-    plan = [[int(v) for v in rng.integers(0, 3, 4) * (rng.random(4) < 0.3)] for _ in range(60)]
+    plan = [[int(v) for v in rng.integers(0, 3, 12) * (rng.random(12) < 0.3)] for _ in range(60)]
     clear_at = 30
     count, flags, log = 0, 0, []
     expect = {}
 
     def drive(t, get):
-        d = sd([(getattr(dut, f"ev{k}"), plan[t][k] if t < len(plan) else 0) for k in range(4)])
+        d = sd([(getattr(dut, f"ev{k}"), plan[t][k] if t < len(plan) else 0) for k in range(12)])
         d[dut.clear] = int(t == clear_at)
         return d
 
     def sample(t, get):
         log.append((get(dut.count), get(dut.flags)))
 
-    simulate(dut, len(plan) + 4, drive, sample)
-    # reference: an event of cycle s is in `count` from cycle s + 2, in `flags` from s + 1; a clear in
-    # cycle c zeroes both from c + 1 on, and then only events from cycle c on (count) or c + 1 on (flags)
-    # are in them
-    ev = lambda s_: plan[s_] if 0 <= s_ < len(plan) else [0, 0, 0, 0]
+    simulate(dut, len(plan) + 5, drive, sample)
+    # reference: an event of cycle s is in `count` from cycle s + 3, in `flags` from s + 1; a clear in
+    # cycle c zeroes both from c + 1 on, and then only events from cycle c - 1 on (count: the ones not
+    # yet summed) or c + 1 on (flags) are in them
+    ev = lambda s_: plan[s_] if 0 <= s_ < len(plan) else [0] * 12
     qs = sorted(set(events))
-    for t in range(len(plan) + 3):
-        lo_c, lo_f = (clear_at, clear_at + 1) if t >= clear_at + 1 else (0, 0)
-        count = sum(sum(ev(s_)) for s_ in range(lo_c, t - 1))
+    for t in range(len(plan) + 4):
+        lo_c, lo_f = (clear_at - 1, clear_at + 1) if t >= clear_at + 1 else (0, 0)
+        count = sum(sum(ev(s_)) for s_ in range(lo_c, t - 2))
         flags = 0
         for s_ in range(lo_f, t):
             for k, q in enumerate(events):
                 if ev(s_)[k]:
                     flags |= 1 << qs.index(q)
         expect[t] = (count, flags)
-    for t in range(3, len(plan) + 3):
+    for t in range(3, len(plan) + 4):
         assert log[t][0] == expect[t][0], (t, log[t], expect[t])
         assert log[t][1] == expect[t][1], (t, log[t], expect[t])
 

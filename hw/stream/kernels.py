@@ -6,8 +6,8 @@ Each lane kind runs its kernel through `PipeArith` (hw/pipeline.py) with its inp
            (the window read presented at 2); contributions +fe (i), -fe (j) at `stage`; a at `state_stage`
   pair     stage 0: issue; 2: ROM fields; 4: x, u of the D + 1 nodes; contributions at `stage`, each
            zero where the pair's gate is closed (the ring still counts the item: see ForceRing `first`)
-  node     stage 0: retirement (window, force ring and ROM reads); 2: x, u, ROM fields; 3: the exact
-           sum of the force rings; x, u results at `stage`
+  node     stage 0: retirement (window, force ring and ROM reads); 2: x, u, ROM fields; 4: the exact
+           sum of the force rings (partial sums of up to 4 rings at 3); x, u results at `stage`
 
 `dry_run_*` builds a kernel on a throw-away Module to learn its stages and saturating quantities before
 any component is elaborated (the schedule needs them at construction); each lane asserts at elaboration
@@ -27,7 +27,7 @@ from .bram import LATENCY
 
 ROM_STAGE = LATENCY               # ROM fields (and a) valid at stage 2
 NODE_STAGE = 2 * LATENCY          # x, u at stage 4 (window read presented at stage 2)
-FORCE_STAGE = LATENCY + 1         # node lanes: the sum of the force rings, registered
+FORCE_STAGE = LATENCY + 2         # node lanes: the sum of the force rings, in two registered levels
 
 
 class NodeArith(PipeArith):

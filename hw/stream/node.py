@@ -8,7 +8,8 @@ when the stream has passed the group's last contribution (hw/stream/schedule.py)
   stage 2    x, u (`node`: this lane's node of the group word), the ROM fields (whether the node exists:
              the last group may be short; per force ring "this ring holds contributions to this node",
              which masks the stale words of rings that do not; the kernel's flags and parameters)
-  stage 3    the exact sum of the masked force ring words (`forces`), registered
+  stage 4    the exact sum of the masked force ring words (`forces`): sums of up to FORCE_CHUNK rings
+             registered at stage 3, their sum at stage 4 (no long adder tree after a block RAM)
   ...        `node_kernel` through PipeArith: loads by the retirement's own step number (retirement
              runs into the next period, so two steps share the pipeline), floor, friction, mass, gravity
   `stage`    `store`: x, u written into the node store (bank q, word g)
@@ -27,6 +28,8 @@ from .element import SAT_BITS
 from .kernels import FORCE_STAGE, ROM_STAGE, build_node
 from .lanerom import LaneRom
 from .nodeword import bits_for
+
+FORCE_CHUNK = 4
 
 
 def RetireSignature(groups: int):
@@ -80,17 +83,22 @@ class NodeLane(wiring.Component):
             arr = np.asarray(raw)
             return rom.add(f"{name}_prm_{qty}", shape, np.where(exists, arr[orig], 0))
 
-        # stage 3: the exact sum of the masked force ring words, per dimension
+        # stages 3, 4: the exact sum of the masked force ring words, per dimension
         F = []
         off = 0
         words = []
         for bits in self.force_bits:
             words.append([self.forces[off + k * bits:off + (k + 1) * bits].as_signed() for k in range(D)])
             off += D * bits
+        R = len(self.rings)
         for k in range(D):
-            total = tree_sum([Mux(mask_bits[r], words[r][k], 0) for r in range(len(self.rings))])
+            parts = []
+            for c in range(0, R, FORCE_CHUNK):
+                part = Signal(signed(self.sum_bits), name=f"{name}_force{k}_{c // FORCE_CHUNK}")
+                m.d.sync += part.eq(tree_sum([Mux(mask_bits[r], words[r][k], 0) for r in range(c, min(R, c + FORCE_CHUNK))]))
+                parts.append(part)
             f = Signal(signed(self.sum_bits), name=f"{name}_force{k}")
-            m.d.sync += f.eq(total)
+            m.d.sync += f.eq(tree_sum(parts))
             F.append(f)
         X, U = cfg.word.unpack(self.node)
         built = build_node(m, p, fmt, cfg.units, valid0, name, src, X, U, F, self.retire.step)

@@ -1,10 +1,12 @@
 """`SaturationCounter`: the run's saturation count and the sticky flag per quantity.
 
 Every lane reports, per saturating quantity, how many of its items saturated that quantity in a cycle
-(PipeArith `saturation_events`, registered in the lane). Their sum over lanes is registered
-(`per_cycle`), then added into `count` (saturating at 2^32 - 1): an event is in `count` two cycles after
-its lane register. `flags` bit k (quantity `quantities[k]`, sorted by name as the manifest lists them)
-is set when any lane reports that quantity, and stays set. `clear` zeroes both.
+(PipeArith `saturation_events`, registered in the lane). The reports are summed in two registered
+levels (sums of up to CHUNK reports, then their sum: no long adder tree in one cycle, as there are
+about 15 reports per lane), then added into `count` (saturating at 2^32 - 1): an event is in `count`
+LATENCY = 3 cycles after its lane register. `flags` bit k (quantity `quantities[k]`, sorted by name as
+the manifest lists them) is set when any lane reports that quantity, and stays set. `clear` zeroes both
+(events already summed but not yet in `count` are lost with it).
 """
 from __future__ import annotations
 
@@ -14,6 +16,10 @@ from amaranth.lib.wiring import In, Out
 
 from ..rtl_fixed import tree_sum
 from .element import SAT_BITS
+
+
+CHUNK = 8
+LATENCY = 3
 
 
 class SaturationCounter(wiring.Component):
@@ -32,8 +38,13 @@ class SaturationCounter(wiring.Component):
             m.d.sync += [self.count.eq(0), self.flags.eq(0)]
         if not evs:
             return m
+        chunks = []
+        for k in range(0, len(evs), CHUNK):
+            c = Signal(16, name=f"chunk{k // CHUNK}")
+            m.d.sync += c.eq(tree_sum(evs[k:k + CHUNK]))
+            chunks.append(c)
         per_cycle = Signal(16)
-        m.d.sync += per_cycle.eq(tree_sum(evs))
+        m.d.sync += per_cycle.eq(tree_sum(chunks))
         hits = Cat(*[Cat(*[ev != 0 for ev, q in zip(evs, self.events) if q == qq]).any() for qq in self.quantities])
         new = self.count + per_cycle
         with m.If(~self.clear):
