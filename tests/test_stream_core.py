@@ -120,3 +120,34 @@ def test_everything_static_is_known_at_construction():
     assert sum(m["name"].startswith("window_copy") for m in mems) == 2 * 2 + 3 * 2 + 1
     del core                                  # never elaborated: silence its components' warnings here
     gc.collect()
+
+
+def test_a_scene_beyond_the_window_is_refused_in_one_line(tmp_path):
+    """A wheel of 1,100 spokes (every rim node tied to the hub): no numbering puts its nodes closer than
+    about 550 apart, beyond the 512-node window of one node lane: `rheo verilog` prints the bandwidth and
+    the window on one line and exits 2."""
+    n = 1100
+    ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    nodes = [[0.0, 0.0]] + [[float(np.cos(a)) * 0.05, float(np.sin(a)) * 0.05] for a in ang]
+    edges = [[0, k] for k in range(1, n + 1)] + [[k, k % n + 1] for k in range(1, n + 1)]
+    (tmp_path / "wheel.toml").write_text(f"""
+description = "a wheel"
+dim = 2
+
+[integrator]
+dt = 1e-4
+duration = 0.001
+
+[[objects]]
+name = "wheel"
+mesh = {{ type = "explicit", nodes = {nodes}, edges = {edges} }}
+material = {{ preset = "viscoelastic", node_mass = 1e-3 }}
+pinned = [0]
+""")
+    r = subprocess.run([sys.executable, "-m", "sim.cli", "verilog", str(tmp_path / "wheel.toml"), "--core", "stream",
+                        "--out", str(tmp_path / "out")], cwd=ROOT, capture_output=True, text=True)
+    assert r.returncode == 2, r.stderr[-2000:]
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("rheo: error:")]
+    assert len(lines) == 1, r.stderr[-2000:]
+    assert "bandwidth" in lines[0] and "512 groups of 1 nodes (512 nodes)" in lines[0], lines[0]
+    assert "Traceback" not in r.stderr

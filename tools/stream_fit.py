@@ -1,0 +1,48 @@
+"""Block RAM budget of the streaming core against mesh size (a model from the cores' own memory
+inventories, StreamCore.memories(), plus the function units' ROMs that Yosys infers): which squares and
+boxes fit the 208 DP16KD of an LFE5U-85F. Formats come from the 1e4-element mesh (they hardly depend on
+its size), so no range analysis of the large meshes is needed.
+
+    python tools/stream_fit.py square 6 2 narrow 10000 20000 30000 ...
+"""
+from __future__ import annotations
+
+import sys
+import warnings
+
+import numpy as np
+
+warnings.filterwarnings("ignore")
+UNIT_ROM_BLOCKS = {2: 5, 3: 5}      # per element lane (1/sqrt seeds, Phi and Psi tables): 30 for 6 lanes (Yosys, square:10000)
+
+
+def inventory(kind, n, P, Q, preset, fmt_cache={}):
+    from hw.bittrue import BitTrue
+    from hw.stream.config import StreamConfig
+    from hw.stream.core import StreamCore
+    from sim.bench import box_system, square_system
+    make = square_system if kind == "square" else box_system
+    if (kind, preset) not in fmt_cache:
+        fmt_cache[(kind, preset)] = BitTrue(make(10_000), preset).formats
+    sys_ = make(n)
+    bt = BitTrue(sys_, preset, formats=fmt_cache[(kind, preset)])
+    core = StreamCore(StreamConfig.of(bt, P, Q))
+    mems = core.memories()
+    blocks = sum(m["dp16kd"] for m in mems) + P * UNIT_ROM_BLOCKS[sys_.dim]
+    sch = core.schedule
+    return dict(elements=sys_.n_elements, nodes=sys_.n_nodes, bandwidth=sch.bandwidth, T=sch.period,
+                C=sch.slots, window_groups=sch.window_groups, dp16kd=blocks,
+                by_kind={k: sum(m["dp16kd"] for m in mems if m["name"].startswith(k))
+                         for k in ("store", "window", "ring", "runsum", "el", "nd", "fill", "retire")})
+
+
+if __name__ == "__main__":
+    kind, P, Q, preset = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+    for n in sys.argv[5:]:
+        try:
+            r = inventory(kind, int(n), P, Q, preset)
+            print(f"{kind}:{n} E {r['elements']} N {r['nodes']} bw {r['bandwidth']} T {r['T']} (C {r['C']}, "
+                  f"+{100 * (r['T'] / r['C'] - 1):.1f} %) Wg {r['window_groups']} DP16KD {r['dp16kd']} {r['by_kind']}",
+                  flush=True)
+        except ValueError as exc:
+            print(f"{kind}:{n} refused: {exc}", flush=True)
