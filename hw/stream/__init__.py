@@ -1,21 +1,26 @@
-"""The streaming core (issue 15, design C of docs hw-architecture review): node state stored once, the
-element and pair streams in a bandwidth-reducing order reading their nodes from a sliding window, node
-integration fused into the stream, steps back to back on a static schedule.
+"""The streaming core (issue 15, design C of the hardware architecture review): node state stored once,
+the element and pair streams in a bandwidth-reducing order reading their nodes from a sliding window,
+node integration fused into the stream, steps back to back on a static schedule. docs/streaming-core.md
+has the design and the measured figures.
 
-Modules, one concept each (no Amaranth in the first two):
+Modules, one concept each (the first two without Amaranth):
 
-  order.py      scene-compile-time order: reverse Cuthill-McKee renumbering, sorted streams, lanes
-  schedule.py   StreamSchedule: every fill, read, contribution and retirement cycle, the window, the
-                period T, checked against every read-after-write constraint at construction
-  bram.py       BlockRam: a simple dual-port block RAM with its output register (Amaranth Memory, or
-                ECP5 DP16KD instances with REGMODE_B = "OUTREG"), and the DP16KD model for simulators
-  nodeword.py   how a node's x, u words pack into memory words
-  store.py      NodeStore: node state, stored once in Q banks
-  window.py     NodeWindow: the ring of nodes, one copy per read port, written by the fill
-  forcering.py  ForceRing: a lane role's force accumulator (read-modify-write with forwarding)
-  element.py    ElementLane, pair.py PairLane, node.py NodeLane: the per-item kernels of hw/datapath.py
-  control.py    Control: the run, its prologue, periods and epilogue; hostport.py HostPort
-  core.py       StreamCore: the top, composing the components; config.py StreamConfig
+  order.py       scene-compile-time order: reverse Cuthill-McKee renumbering, sorted streams, lanes
+  schedule.py    StreamSchedule: every fill, read, contribution and retirement cycle, the window, the
+                 period T, checked against every read-after-write rule at construction
+  config.py      StreamConfig: order, pipeline stages (dry runs), schedule, force rings, host map
+  bram.py        BlockRam: simple dual-port block RAM with its output register (Amaranth Memory, or
+                 ECP5 DP16KD instances with REGMODE_B = "OUTREG"); dp16kd.v: the DP16KD model
+  nodeword.py    how a node's x, u words pack into memory words; small gateware helpers
+  store.py       NodeStore: node state, stored once in Q banks
+  window.py      NodeWindow: the ring of nodes, one copy per read port, written by the fill
+  forcering.py   ForceRing (read-modify-write with forwarding) and RunSum (runs summed in a register)
+  kernels.py     the kernels of hw/datapath.py on PipeArith for each lane kind, and their dry runs
+  lanerom.py     LaneRom: a lane's per-item fields in one ROM
+  element.py     ElementLane; pair.py PairLane; node.py NodeLane
+  control.py     Control: the run, its prologue, periods and epilogue
+  hostport.py    HostPort: the register map of hw/hostmap.py; saturation.py SaturationCounter
+  core.py        StreamCore: the top, composing the components; manifest.py: its manifest
 """
 
 CORES = ("phased", "stream")
