@@ -15,7 +15,9 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
+from enum import StrEnum
 
+from golden.errors import RheoError
 from .fixed import SQ, Shape
 
 # quantity -> (word class, what it is)
@@ -69,6 +71,10 @@ CONSTANTS = {"L": "l", "k1": None, "c1": None, "c1a": None, "c2": None, "phi_s":
              "coll_h": None, "coll_K": None, "coll_C": None, "coll_kf": None,
              "load": "facc"}
 
+# every quantity and constant name as a checked constant: kernels write Q.l2, and a misspelt name is an
+# AttributeError where it is written (tests/test_house.py also checks every Q.name in the kernels' source)
+Q = StrEnum("Q", {name: name for name in (*QUANTITIES, *CONSTANTS)})
+
 
 @dataclass(frozen=True)
 class Preset:
@@ -83,7 +89,7 @@ class Preset:
     description: str = ""
 
 
-PRESETS = {
+FORMAT_PRESETS = {
     "narrow": Preset("narrow", 18, 18, rsqrt_seed_bits=9, rsqrt_newton=1, damper_segments_log2=6,
                      description="DSP-native: 18-bit words everywhere (one 18x18 multiplier per product)"),
     "medium": Preset("medium", 27, 18, rsqrt_seed_bits=9, rsqrt_newton=1, damper_segments_log2=8,
@@ -122,7 +128,7 @@ STAGNATION_STATES = {"x": "v dt (the displacement of a step)", "u": "F dt / m (t
                      "a": "adot dt (the change of a of a step)"}
 
 
-class FormatError(ValueError):
+class FormatError(RheoError, ValueError):
     """Number formats under which the scene cannot run right (a constant or the initial state does not fit)."""
 
 
@@ -193,6 +199,15 @@ def derive(peaks: dict, preset: Preset, overrides: dict | None = None, increment
     for q, shape in check_overrides(overrides or {}).items():
         fs.shapes[q] = shape
     return fs
+
+
+def check_scene_formats(system) -> dict:
+    """Validate a scene's [formats] table (golden keeps it as given); a problem raises FormatError naming
+    the scene and the table."""
+    try:
+        return check_overrides(system.formats)
+    except ValueError as exc:
+        raise FormatError(f"scene '{system.name}': [formats] {exc}") from None
 
 
 def check_overrides(overrides: dict) -> dict:

@@ -38,7 +38,8 @@ try:
 except ImportError as exc:          # numba is a dependency in pyproject.toml; say how to get it
     raise ImportError("the cpu backend needs Numba: pip install -e . (or pip install numba)") from exc
 
-from golden.model import State, System, component_major
+from golden.system import State, System, component_major
+from golden.model import Stepper
 
 def _jit(**flags):
     """njit, cached; numpy's error model (x / 0 gives inf, no exception check blocking vectorisation)."""
@@ -644,18 +645,18 @@ def _per_element(value, E: int) -> np.ndarray:
     return np.ascontiguousarray(np.broadcast_to(np.asarray(value, float), (E,)))
 
 
-class Cpu:
-    """Steps a System in float64 with compiled loops; the same interface as golden.model.Golden."""
+class Cpu(Stepper):
+    """Steps a System in float64 with compiled loops (a golden.model.Stepper, as golden.model.Golden)."""
 
-    def __init__(self, sys: System, threads: int | None = None):
-        self.sys = sys
-        E, N, D = sys.n_elements, sys.n_nodes, sys.dim
+    def __init__(self, system: System, threads: int | None = None):
+        self.system = system
+        E, N, D = system.n_elements, system.n_nodes, system.dim
         if threads is None:
             threads = 2 if E >= PARALLEL_MIN_ELEMENTS else 1
         self.threads = max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS))
-        p = sys.elem
+        p = system.elem
         # unsigned indices: no negative-index wraparound in the gathers
-        i, j = (np.ascontiguousarray(sys.edges[:, c], np.uint32 if N < 2 ** 32 else np.uint64) for c in (0, 1))
+        i, j = (np.ascontiguousarray(system.edges[:, c], np.uint32 if N < 2 ** 32 else np.uint64) for c in (0, 1))
         cols = {f: _per_element(getattr(p, f), E) for f in PARAMS}
         c1, cmin, cmax = cols["c1"], cols["c_min"], cols["c_max"]
         B, f1, f2 = cols["B"], cols["f1"], cols["f2"]
@@ -666,32 +667,32 @@ class Cpu:
         self.el = Elements(i, j, *cols.values(), *knees, *chord, bool(p.nonlinear), bool(p.fixed_a),
                            bool(np.all(exponent <= EXP_MAX)))
         no_pairs = np.zeros((0, D + 1), np.int64)
-        tp = sys.topology
+        tp = system.topology
         self.tp = (Topo(True, np.ascontiguousarray(tp.pairs, np.int64), float(tp.K), float(tp.C), float(tp.eps))
                    if tp is not None and len(tp.pairs) else Topo(False, no_pairs, 0.0, 0.0, 0.0))
-        fl = sys.floor
+        fl = system.floor
         self.fl = (FloorP(True, float(fl.height), float(fl.K), float(fl.C), float(fl.mu), float(fl.k_f))
                    if fl is not None else FloorP(False, 0.0, 0.0, 0.0, 0.0, 0.0))
-        cl = sys.collision
+        cl = system.collision
         self.cl = (Coll(True, np.ascontiguousarray(cl.vertices, np.int64), np.ascontiguousarray(cl.facets, np.int64),
                         np.ascontiguousarray(cl.neighbour_keys, np.int64), int(cl.n_nodes), float(cl.K), float(cl.C),
                         float(cl.threshold), float(cl.mu), float(cl.k_f))
                    if cl is not None else Coll(False, np.zeros(0, np.int64), np.zeros((0, D), np.int64),
                                                np.zeros(1, np.int64), N, 0.0, 0.0, 0.0, 0.0, 0.0))
-        nodes = [np.unique(np.asarray(l.nodes, np.int64)) for l in sys.loads]    # F[nodes] += f: once a node
+        nodes = [np.unique(np.asarray(l.nodes, np.int64)) for l in system.loads]    # F[nodes] += f: once a node
         self.ld = Loads(np.concatenate([[0], np.cumsum([len(s) for s in nodes])]).astype(np.int64),
                         np.concatenate(nodes + [np.zeros(0, np.int64)]),
-                        np.array([np.asarray(l.force, float) for l in sys.loads]).reshape(len(sys.loads), D),
-                        np.array([float(l.start) for l in sys.loads]), np.array([float(l.end) for l in sys.loads]))
-        self.nd = Nodes(np.where(sys.pinned, 0.0, sys.dt / sys.mass), (~sys.pinned).astype(float),
-                        np.asarray(sys.gravity, float) * sys.dt, float(sys.dt))
+                        np.array([np.asarray(l.force, float) for l in system.loads]).reshape(len(system.loads), D),
+                        np.array([float(l.start) for l in system.loads]), np.array([float(l.end) for l in system.loads]))
+        self.nd = Nodes(np.where(system.pinned, 0.0, system.dt / system.mass), (~system.pinned).astype(float),
+                        np.asarray(system.gravity, float) * system.dt, float(system.dt))
         self._Ft = np.zeros((D, N))
         self._wk = Work(np.zeros((D, E)), *(np.zeros(E) for _ in range(5)), np.zeros(E, np.bool_),
                         Solve(np.zeros(E, np.int64), *(np.zeros(E) for _ in range(9))),
                         np.zeros((self.threads if self.threads > 1 else 0, D, N)))
 
     def initial_state(self) -> State:
-        return State.initial(self.sys)
+        return State.initial(self.system)
 
     def _layout(self, st: State):
         """st's x, v as the component-major (D, N) float64 buffers the loops index (golden's State layout)."""
@@ -703,7 +704,7 @@ class Cpu:
             st.a = np.ascontiguousarray(st.a, np.float64)
         return st.x.T, st.v.T
 
-    def advance(self, st: State, n: int) -> None:
+    def advance(self, st: State, n: int, progress=None) -> None:
         """n steps in one compiled call."""
         if n <= 0:
             return
@@ -712,6 +713,8 @@ class Cpu:
         _run(int(n), int(st.step), xt, vt, st.a, self.el, self.tp, self.fl, self.cl, self.ld,
              self.nd, self.threads > 1, self._Ft, self._wk)
         st.step += int(n)
+        if progress is not None:
+            progress(int(n))
 
     def step(self, st: State) -> None:
         self.advance(st, 1)
@@ -726,25 +729,22 @@ class Cpu:
 
 
 class _FromState(Cpu):
-    """The cpu backend started from a given state (the stepper protocol of golden.stability's trials)."""
+    """The cpu backend started from a given state (the stability trials, golden/measure.py)."""
 
-    def __init__(self, sys: System, start: State, threads: int | None = None):
-        super().__init__(sys, threads)
+    def __init__(self, system: System, start: State, threads: int | None = None):
+        super().__init__(system, threads)
         self._start = start
 
     def initial_state(self) -> State:
         return self._start.copy()
 
-    def frame(self, st: State):
-        return st.x, st.v, st.a
+
+def stability_model(system: System, start: State) -> Cpu:
+    """golden.measure.measure(..., model=stability_model): trials on the cpu backend."""
+    return _FromState(system, start)
 
 
-def stability_model(sys: System, start: State) -> Cpu:
-    """golden.stability.measure(..., model=stability_model): trials on the cpu backend."""
-    return _FromState(sys, start)
-
-
-def simulate_cpu(sys: System, steps=None, every=None, progress=False, threads=None):
+def simulate_cpu(system: System, steps=None, every=None, progress=False, threads=None):
     """golden.model.simulate with the compiled stepper."""
     from golden.model import simulate
-    return simulate(sys, steps=steps, every=every, progress=progress, stepper=Cpu(sys, threads))
+    return simulate(system, steps=steps, every=every, progress=progress, stepper=Cpu(system, threads))

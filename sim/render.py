@@ -7,13 +7,12 @@ Elements are drawn as line segments coloured by object, 2D cells are lightly fil
 small black markers and the floor (when the run has one) is a grey line in 2D or a translucent plane in
 3D. All panels / animation frames share one set of axis limits with equal aspect.
 
-Errors meant to become one-line CLI messages: FileNotFoundError for a missing run file, ValueError for a
-malformed run file (missing keys, inconsistent shapes), bad frame indices or an unsupported output suffix.
+Errors meant to become one-line CLI messages: sim/runfile.py's RunFileMissing / RunFileError for a missing
+or malformed run file (missing keys, inconsistent shapes), ValueError for bad frame indices or an unsupported
+output suffix.
 """
 from __future__ import annotations
 
-import zipfile
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -28,140 +27,10 @@ from matplotlib.lines import Line2D  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection  # noqa: E402
 from PIL import Image  # noqa: E402  (a matplotlib dependency)
 
-RENDER_KEYS = ("t", "x", "edges", "cells", "node_object", "pinned")
+from .runfile import load_run  # noqa: E402
+
 DEFAULT_PANELS = 4
 MAX_GIF_FRAMES = 200
-_READ_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error)
-_OPTIONAL_KEYS = ("v", "a", "cell_object", "object_names", "dim", "scene", "floor_height")
-
-
-# ----------------------------------------------------------------------------------------------------
-# Reading and checking a run file (shared with sim.vtk_export)
-# ----------------------------------------------------------------------------------------------------
-
-def load_run(npz_path, required=RENDER_KEYS) -> dict:
-    """Read the keys of a run file needed here, check their shapes and return them normalised.
-
-    Returns a dict with at least t, x, edges, cells (shape (C, D+1) even when empty), node_object,
-    pinned, cell_object, object_names (list of str), n_objects, dim, scene (str), floor_height (float,
-    NaN without a floor), plus v and a when present.
-    """
-    path = Path(npz_path)
-    if not path.is_file():
-        raise FileNotFoundError(f"run file not found: {path}")
-    data = {}
-    try:
-        f = np.load(path, allow_pickle=False)
-    except _READ_ERRORS as exc:
-        raise ValueError(f"cannot read run file {path}: {exc}") from None
-    if not hasattr(f, "files"):
-        raise ValueError(f"cannot read run file {path}: not an NPZ archive")
-    try:
-        with f:
-            files = set(f.files)
-            missing = [k for k in required if k not in files]
-            if not missing:
-                for k in (set(required) | set(_OPTIONAL_KEYS)) & files:
-                    try:
-                        data[k] = f[k]
-                    except ValueError:
-                        if k in required:
-                            raise
-                        # an optional key that cannot be read without pickling is ignored
-    except _READ_ERRORS as exc:
-        raise ValueError(f"cannot read run file {path}: {exc}") from None
-    if missing:
-        raise ValueError(f"run file {path} lacks required key(s): {', '.join(missing)}")
-    return _check_run(path, data)
-
-
-def _bad(path, what):
-    return ValueError(f"run file {path}: {what}")
-
-
-def _check_run(path, d: dict) -> dict:
-    x = np.asarray(d["x"], dtype=np.float64)
-    if x.ndim != 3 or x.shape[2] not in (2, 3):
-        raise _bad(path, f"x must have shape (F, N, 2|3), got {x.shape}")
-    F, N, D = x.shape
-    if F == 0:
-        raise _bad(path, "the run has no frames")
-    t = np.asarray(d["t"], dtype=np.float64).reshape(-1)
-    if t.shape != (F,):
-        raise _bad(path, f"t has {t.size} entries but x has {F} frames")
-    if "dim" in d and int(d["dim"]) != D:
-        raise _bad(path, f"dim is {int(d['dim'])} but x has {D} components")
-
-    edges = np.asarray(d["edges"])
-    if edges.size == 0:
-        edges = np.zeros((0, 2), np.int64)
-    if edges.ndim != 2 or edges.shape[1] != 2:
-        raise _bad(path, f"edges must have shape (E, 2), got {edges.shape}")
-    edges = edges.astype(np.int64)
-    E = len(edges)
-
-    out = dict(t=t, x=x, edges=edges, dim=D)
-
-    if "cells" in d:
-        cells = np.asarray(d["cells"])
-        if cells.size == 0:
-            cells = np.zeros((0, D + 1), np.int64)
-        if cells.ndim != 2 or cells.shape[1] != D + 1:
-            raise _bad(path, f"cells must have shape (C, {D + 1}) in {D}D, got {cells.shape}")
-        cells = cells.astype(np.int64)
-    else:
-        cells = np.zeros((0, D + 1), np.int64)
-    out["cells"] = cells
-    for name, idx in (("edges", edges), ("cells", cells)):
-        if idx.size and (idx.min() < 0 or idx.max() >= N):
-            raise _bad(path, f"{name} refer to nodes outside 0..{N - 1}")
-
-    node_object = np.asarray(d["node_object"]).reshape(-1) if "node_object" in d else np.zeros(N, np.int64)
-    if node_object.shape != (N,):
-        raise _bad(path, f"node_object has {node_object.size} entries for {N} nodes")
-    node_object = node_object.astype(np.int64)
-    if N and node_object.min() < 0:
-        raise _bad(path, "node_object has negative entries")
-    out["node_object"] = node_object
-
-    pinned = np.asarray(d["pinned"]).reshape(-1) if "pinned" in d else np.zeros(N, bool)
-    if pinned.shape != (N,):
-        raise _bad(path, f"pinned has {pinned.size} entries for {N} nodes")
-    out["pinned"] = pinned.astype(bool)
-
-    cell_object = None
-    if "cell_object" in d:
-        cell_object = np.asarray(d["cell_object"]).reshape(-1).astype(np.int64)
-        if cell_object.shape != (len(cells),):
-            cell_object = None
-    if cell_object is None:  # fall back on the object of each cell's first node
-        cell_object = node_object[cells[:, 0]] if len(cells) else np.zeros(0, np.int64)
-    out["cell_object"] = cell_object
-
-    names = [str(s) for s in np.asarray(d.get("object_names", [])).reshape(-1)]
-    n_objects = max(len(names), int(node_object.max()) + 1 if N else 0,
-                    int(cell_object.max()) + 1 if len(cell_object) else 0)
-    names += [f"object {k}" for k in range(len(names), n_objects)]
-    out["object_names"] = names
-    out["n_objects"] = n_objects
-
-    if "v" in d:
-        v = np.asarray(d["v"], dtype=np.float64)
-        if v.shape != x.shape:
-            raise _bad(path, f"v has shape {v.shape} but x has {x.shape}")
-        out["v"] = v
-    if "a" in d:
-        a = np.asarray(d["a"], dtype=np.float64)
-        if a.size == 0 and E == 0:
-            a = np.zeros((F, 0))
-        if a.shape != (F, E):
-            raise _bad(path, f"a must have shape ({F}, {E}), got {a.shape}")
-        out["a"] = a
-
-    out["scene"] = str(d["scene"]) if "scene" in d else ""
-    fh = np.asarray(d.get("floor_height", np.nan), dtype=np.float64).reshape(-1)
-    out["floor_height"] = float(fh[0]) if fh.size else float("nan")
-    return out
 
 
 # ----------------------------------------------------------------------------------------------------

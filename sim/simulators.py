@@ -28,6 +28,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from golden.errors import RheoError
+
 __all__ = [
     "SimulatorMissing",
     "find_icarus",
@@ -46,7 +48,7 @@ _TIMESCALE = ("1ns", "1ps")  # Amaranth's Verilog carries no `timescale
 _LOG_TAIL_LINES = 60
 
 
-class SimulatorMissing(RuntimeError):
+class SimulatorMissing(RheoError, RuntimeError):
     """A simulator is absent or too old; the message says how to get it."""
 
 

@@ -75,10 +75,12 @@ import sys
 import time
 from pathlib import Path
 
+from golden.errors import RheoError
+
 __all__ = ["DEVICES", "SynthesisError", "synthesize"]
 
 
-class SynthesisError(RuntimeError):
+class SynthesisError(RheoError, RuntimeError):
     """A synthesis or place-and-route step failed, or the design does not fit the device."""
 
 
@@ -237,6 +239,38 @@ def _log_utilisation(log_text: str) -> dict[str, dict[str, int]]:
 def _clock_name_matches(name: str, clock_port: str) -> bool:
     # nextpnr names the promoted clock "$glbnet$clk$TRELLIS_IO_IN"
     return name == clock_port or clock_port in [p for p in name.split("$") if p]
+
+
+def cache_root() -> Path:
+    """Where synthesis results are kept between runs (`RHEO_BUILD` moves build/, as for the HDL builds)."""
+    return Path(os.environ.get("RHEO_BUILD", "build")) / "synth"
+
+
+def synthesize_cached(verilog: Path, top: str, device: str = "ecp5-85k", clock_mhz: float = 100.0,
+                      place_and_route: bool = True, progress: bool = False) -> tuple[dict, Path]:
+    """synthesize() once per Verilog text, top, device, clock and place-and-route choice: the results live in
+    build/synth/HASH-DEVICE-pnr|yosys/ (a place-and-route result also answers a Yosys-only question).
+    Returns (result, its directory). A failed or interrupted run leaves no directory behind."""
+    import hashlib
+    text = Path(verilog).read_bytes()
+    digest = hashlib.sha256(text + json.dumps([top, device, clock_mhz]).encode()).hexdigest()[:16]
+    root = cache_root()
+    kinds = ["pnr"] if place_and_route else ["pnr", "yosys"]
+    for kind in kinds:
+        d = root / f"{digest}-{device}-{kind}"
+        if (d / "synth.json").is_file():
+            return json.loads((d / "synth.json").read_text()), d
+    d = root / f"{digest}-{device}-{kinds[0]}"
+    tmp = root / f".{d.name}.{os.getpid()}.tmp"
+    try:
+        result = synthesize(verilog, top, tmp, device=device, clock_mhz=clock_mhz, progress=progress,
+                            place_and_route=place_and_route)
+        if d.exists():                    # another run finished first: keep its result
+            return json.loads((d / "synth.json").read_text()), d
+        os.replace(tmp, d)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return result, d
 
 
 def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k", clock_mhz: float = 100.0,

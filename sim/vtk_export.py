@@ -17,7 +17,7 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from sim.render import load_run
+from sim.runfile import load_run
 
 EXPORT_KEYS = ("t", "x", "v", "a", "edges", "cells", "node_object", "pinned")
 PVD_NAME = "run.pvd"

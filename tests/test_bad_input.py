@@ -476,12 +476,12 @@ def test_output_and_build_paths_never_come_from_a_scene_name(tmp_path):
     """Names that reach paths without passing load_scene (a System built in code, a file's stem) are reduced
     to a plain file name: the build directory of a core stays inside its root."""
     import dataclasses
-    from golden.scene import compile_scene, file_stem, load_scene
+    from golden.scene import file_stem, load_scene
     from hw.bittrue import BitTrue
     from sim.hdlsim import emit_core
     assert file_stem("/abs/path/RUN") == "abs-path-RUN" and file_stem("../..") == "scene"
     assert file_stem("my scene") == "my-scene" and file_stem("press-2d-rheological") == "press-2d-rheological"
-    sys_ = dataclasses.replace(compile_scene(load_scene("creep-1d")), name=str(tmp_path / "outside" / "x"))
-    core_dir, _, _ = emit_core(BitTrue(sys_, "wide", range_steps=20), root=tmp_path / "build")
+    system = dataclasses.replace(load_scene("creep-1d"), name=str(tmp_path / "outside" / "x"))
+    core_dir, _, _ = emit_core(BitTrue(system, "wide", range_steps=20), root=tmp_path / "build")
     assert core_dir.parent == tmp_path / "build"
     assert not (tmp_path / "outside").exists()

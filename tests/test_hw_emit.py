@@ -95,7 +95,7 @@ def test_full_featured_3d_build_has_every_unit_even_with_friction_that_never_sli
     from hw import emit
     from hw.bittrue import BitTrue
     from hw.core import CoreConfig, schedule
-    from sim.cli import _load_system
+    from sim.cli.common import load_system as _load_system
     base = dataclasses.replace(_load_system("gravity-3d-linear"), n_steps=20)
     bt = BitTrue(emit.full_featured(base), "narrow")
     assert {"finv", "cinv2", "tinv2", "phi", "psi"} <= set(bt.ar.units)

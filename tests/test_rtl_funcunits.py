@@ -277,7 +277,7 @@ SCENE = "press-2d-rheological"
 
 @pytest.fixture(scope="module")
 def scene_units():
-    """{preset: {name: model}} for press-2d-rheological: the function units `hw.bittrue.BitTrue(sys,
+    """{preset: {name: model}} for press-2d-rheological: the function units `hw.bittrue.BitTrue(system,
     preset)` builds (formats from a full range analysis, as `rheo simulate --backend fixed`; cached per
     session in tests/conftest.py), identical configurations (inv_l and tinv) kept once."""
     from conftest import bittrue

@@ -1,40 +1,34 @@
 """`rheo stability SCENE [--measure [--model golden|fixed|both] [--preset P]] [--json]`: the predicted (and
-measured) largest stable dt of a scene, and the guard `refuse_if_unstable` for `rheo simulate`
-(golden/stability.py has the formulas and the bisection; hw/stability_fixed.py the bit-true trial).
-
-Wiring in sim/cli.py:
-
-    from sim import stability_cmd
-    stability_cmd.add_parser(sub)                     # in build_parser()
-    stability_cmd.refuse_if_unstable(sys_, args.force)  # in cmd_simulate / cmd_run, before simulating
-"""
+measured) largest stable dt of a scene, and the guard `refuse_if_unstable` for `rheo simulate` and `rheo run`
+(golden/stability.py has the formulas, golden/measure.py the bisection, hw/stability_fixed.py the bit-true
+trial)."""
 from __future__ import annotations
 
 import json
 import math
 
+from .common import FORMAT_PRESETS, UsageError, load_system, scene_argument
+
 MODELS = ("golden", "fixed", "both")
 
 
-def add_parser(subparsers):
-    s = subparsers.add_parser(
-        "stability", help="predicted (and measured) largest stable dt of a scene",
-        description="Predict the largest dt at which the explicit (symplectic Euler) step of a scene is stable, "
-                    "with the node or element that limits it; --measure also finds the real limit by bisection "
-                    "on runs of the golden model, or of the bit-true model (--model fixed or both).")
-    from hw.formats import PRESETS
-    s.add_argument("scene", help="built-in scene name or path to a scene .toml")
-    s.add_argument("--measure", action="store_true",
-                   help="also measure the limit on real runs (seconds to a minute for the built-in 2D scenes)")
-    # default None, not the default value: given without --measure is an error (cmd)
-    s.add_argument("--model", choices=MODELS, default=None,
-                   help="--measure on the golden model, the bit-true model or both (default: golden; "
-                        "measuring the bit-true model takes 5-10x as long)")
-    s.add_argument("--preset", choices=list(PRESETS), default=None,
-                   help="--measure --model fixed/both: number-format preset of the bit-true model (default: wide)")
-    s.add_argument("--json", action="store_true", help="print JSON")
-    s.set_defaults(func=cmd)
-    return s
+NAME, HELP = "stability", "predicted (and measured) largest stable dt of a scene"
+DESCRIPTION = ("Predict the largest dt at which the explicit (symplectic Euler) step of a scene is stable, with "
+               "the node or element that limits it; --measure also finds the real limit by bisection on runs of "
+               "the golden model, or of the bit-true model (--model fixed or both).")
+
+
+def add_arguments(parser) -> None:
+    scene_argument(parser)
+    parser.add_argument("--measure", action="store_true",
+                        help="also measure the limit on real runs (seconds to a minute for the built-in 2D scenes)")
+    # default None, not the default value: given without --measure is an error (run)
+    parser.add_argument("--model", choices=MODELS, default=None,
+                        help="--measure on the golden model, the bit-true model or both (default: golden; "
+                             "measuring the bit-true model takes 5-10x as long)")
+    parser.add_argument("--preset", choices=FORMAT_PRESETS, default=None,
+                        help="--measure --model fixed/both: number-format preset of the bit-true model (default: wide)")
+    parser.add_argument("--json", action="store_true", help="print JSON")
 
 
 def _finite(x):
@@ -57,44 +51,41 @@ def _measured(m: dict) -> dict:
             "runs": len(m["trials"]), "seconds": m["seconds"], "reference_dt": m["dt_ref"]}
 
 
-def report(sys_, measure: bool = False, model: str = "golden", preset: str = "wide") -> dict:
+def report(system, measure: bool = False, model: str = "golden", preset: str = "wide") -> dict:
     """Prediction (and measurement) as one dict: "measured" on the golden model, "measured_fixed" on the
     bit-true model of the preset (hw/stability_fixed.py), with "vs_golden" (its limit / golden's) for both."""
-    from golden.stability import measure as measure_dt
+    from golden.measure import measure as measure_dt
     from golden.stability import predict
     if model not in MODELS:
-        raise ValueError(f"unknown model '{model}' (known: {', '.join(MODELS)})")
-    p = predict(sys_)
-    out = {"scene": sys_.name, "nodes": sys_.n_nodes, "elements": sys_.n_elements, **p}
+        raise UsageError(f"unknown model '{model}' (known: {', '.join(MODELS)})")
+    p = predict(system)
+    out = {"scene": system.name, "nodes": system.n_nodes, "elements": system.n_elements, **p}
     if not measure:
         return out
     try:
         if model in ("golden", "both"):
             from sim.cpu import stability_model      # the golden physics, compiled: the same verdicts, faster
-            out["measured"] = {**_measured(measure_dt(sys_, pred=p, model=stability_model)), "stepper": "cpu"}
+            out["measured"] = {**_measured(measure_dt(system, pred=p, model=stability_model)), "stepper": "cpu"}
         if model in ("fixed", "both"):
             from hw.stability_fixed import measure_fixed
-            m = measure_fixed(sys_, preset, pred=p)
+            m = measure_fixed(system, preset, pred=p)
             out["measured_fixed"] = {"preset": preset, **_measured(m), "yardstick": m["yardstick"],
                                      "bit_true_reference_dt": m["bit_ref_dt"]}
             if "measured" in out:
                 out["measured_fixed"]["vs_golden"] = m["dt_meas"] / out["measured"]["dt_meas"]
     except RuntimeError as exc:          # no bracket found, unstable reference run: one line, no traceback
-        raise ValueError(str(exc)) from None
+        raise UsageError(str(exc)) from None
     return out
 
 
-def cmd(args) -> int:
-    from golden.scene import compile_scene, load_scene
-    # ValueError: sim/cli.py prints it as one line, exit 2 (its UsageError would be a different class
-    # here when the CLI runs as `python -m sim.cli`)
+def run(args) -> int:
     given = [opt for opt, val in (("--model", args.model), ("--preset", args.preset)) if val is not None]
     if given and not args.measure:
-        raise ValueError(f"{' and '.join(given)} {'apply' if len(given) > 1 else 'applies'} only with --measure")
+        raise UsageError(f"{' and '.join(given)} {'apply' if len(given) > 1 else 'applies'} only with --measure")
     if args.preset is not None and args.model in (None, "golden"):
-        raise ValueError("--preset is the bit-true model's: use it with --model fixed or --model both")
-    sys_ = compile_scene(load_scene(args.scene))
-    out = report(sys_, args.measure, args.model or "golden", args.preset or "wide")
+        raise UsageError("--preset is the bit-true model's: use it with --model fixed or --model both")
+    system = load_system(args.scene)
+    out = report(system, args.measure, args.model or "golden", args.preset or "wide")
     if args.json:
         print(json.dumps(_finite(out), indent=2))
         return 0
@@ -132,12 +123,12 @@ def cmd(args) -> int:
     return 0
 
 
-def refuse_if_unstable(sys_, force: bool) -> None:
-    """Raise ValueError (one line) when the scene's dt is above the predicted stable limit, unless force."""
+def refuse_if_unstable(system, force: bool) -> None:
+    """Raise UsageError (one line) when the scene's dt is above the predicted stable limit, unless force."""
     if force:
         return
     from golden.stability import predict
-    p = predict(sys_)
-    if sys_.dt > p["dt_pred"]:
-        raise ValueError(f"scene '{sys_.name}': dt = {sys_.dt:g} s exceeds the predicted stable limit "
+    p = predict(system)
+    if system.dt > p["dt_pred"]:
+        raise UsageError(f"scene '{system.name}': dt = {system.dt:g} s exceeds the predicted stable limit "
                          f"{p['dt_pred']:.4g} s (limited by {p['limiting']}); use a smaller dt or --force")
