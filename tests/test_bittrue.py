@@ -51,6 +51,7 @@ def test_formats_of_mixed_binary_points_add_exactly():
 SENSITIVITY_FACTOR = 3.0       # a sensitive scene's bit-true error may reach 3x its sensitivity floor
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", [n for n in builtin_names() if n != "creep-1d"])
 def test_wide_preset_within_budget_of_golden_over_the_whole_scene(name):
     """Max position error of the wide preset <= 1e-4 of the object size, every frame, full duration.
@@ -77,6 +78,7 @@ def test_wide_preset_within_budget_of_golden_over_the_whole_scene(name):
     assert err <= SENSITIVITY_FACTOR * floor, (err, floor)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", [n for n in builtin_names() if scene_system(n).collision is not None])
 def test_one_step_error_of_the_wide_preset_is_small(name):
     """From the same golden state, one bit-true step equals one golden step to 1e-5 of the scene's peak
@@ -105,6 +107,7 @@ def test_one_step_error_of_the_wide_preset_is_small(name):
     assert worst <= 1e-5 * vmax, (worst, vmax)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", ["wide", "medium"])
 def test_creep_permanent_set_in_fixed_point(preset):
     """Round-to-nearest stagnation would destroy the permanent set: it must stay within 0.5 %."""
@@ -117,6 +120,7 @@ def test_creep_permanent_set_in_fixed_point(preset):
     assert bt.sat.total == 0
 
 
+@pytest.mark.slow
 def test_narrow_preset_shows_stagnation_on_creep():
     """The narrow preset loses the creep increments (the reason the presets exist): the report must show it."""
     system = load_scene("creep-1d")

@@ -103,6 +103,7 @@ def _collision_scenes():
     return [n for n in builtin_names() if load_scene(n).collision is not None]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", _collision_scenes())
 def test_float_datapath_equals_golden_step_by_step_with_collisions(name, monkeypatch):
     """Collision scenes are sensitive: contact gates (within the threshold, foot on the facet) switch

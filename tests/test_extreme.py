@@ -30,6 +30,8 @@ from helpers import run_fixed
 from hw.formats import CONSTANTS, QUANTITIES
 from sim.cli.stability import refuse_if_unstable
 
+pytestmark = pytest.mark.slow      # `make test-fast` leaves these out
+
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = Path(__file__).resolve().parent / "scenes"
 

@@ -21,6 +21,8 @@ from sim.hdlsim import emit_core, run_job
 from conftest import bittrue
 from test_hw_core import active_collision_pairs
 
+pytestmark = pytest.mark.hdl      # `make test-fast` leaves these out
+
 ROOT = Path(__file__).resolve().parents[1]
 SIMULATORS = ["icarus", "verilator"]
 

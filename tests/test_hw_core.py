@@ -22,6 +22,8 @@ from sim.hwsim import AmaranthCore
 
 from conftest import bittrue, scene_system
 
+pytestmark = pytest.mark.hdl      # `make test-fast` leaves these out
+
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = [n for n in builtin_names() if scene_system(n).collision is None or scene_system(n).dim == 2]
 

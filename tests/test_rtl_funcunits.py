@@ -33,6 +33,8 @@ from hw.fixed import SQ, UQ, Saturations, shift_round
 from hw.funcunits import InverseTable, Rsqrt
 from hw.rtl_funcunits import InverseTableUnit, RsqrtUnit
 
+pytestmark = pytest.mark.hdl      # `make test-fast` leaves these out
+
 
 # ================================================================================================ harness
 
