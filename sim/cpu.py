@@ -6,7 +6,7 @@ mirrors `golden/` term for term, one function per golden function:
     golden/elements.py  solve_convex, phi / psi, element_forces   ->  _newton / _solve, _phi / _psi, _tension
     golden/topology.py  topology_forces, facet_frame, foot_weights ->  _topology, _normal, _foot
     golden/contact.py   Floor.forces, Collision.candidates/forces  ->  _floor, _collisions, _contact
-    golden/model.py     Golden.forces, Golden.step                 ->  _elements, _gather, _extras, _integrate
+    golden/model.py     Golden.forces, Golden.step                 ->  _elements, _scatter, _extras, _integrate
 
 and is tested against golden (`tests/test_cpu.py`): after 100 steps of every built-in scene and of random
 scenes, positions agree to 1e-12 of the object size and a to 1e-12 (in practice to the last bits: each
@@ -18,8 +18,8 @@ stop go through `_tension` (scalar, exactly golden's branches), the others (a dr
 exponential piece) are compacted into a list and solved by Newton sweeps over it, with a branch-free
 exp (`_exp`, within an ulp) so that the sweeps vectorise too. A material that is the same for every
 element is passed as scalars (golden's ElementParams does the same), so these passes stream only the
-state. Golden's scatter (a sparse product: each node's sum over its elements in element order) is a
-gather per node (`_gather`), in that order, so the sums are golden's to the bit.
+state. Golden's scatter (a sparse product: each node's sum over its elements in element order) runs
+over the elements in element order (`_scatter`), so the sums are golden's to the bit.
 
 The nodes are cut into chunks (ranges of node numbers); each chunk holds its own copy of every element
 that touches one of its nodes, so that one chunk is a whole step for its nodes: its elements, their sums
@@ -69,12 +69,13 @@ PARAMS = ("k1", "c1", "a_min", "a_max", "c_min", "c_max", "B", "f1", "f2")
 # Every parameter (PARAMS, and Y1, Y2: Phi's knees; G_lo, G_hi: G at f1 and f2, the chord the solve starts
 # from) is a float when the material is uniform, else an array over the element copies; L always an array.
 # fast_exp: every damper's exponent B (t - f1) stays below EXP_MAX, so the vectorised solve applies.
-Elements = namedtuple("Elements", "i j L " + " ".join(PARAMS) + " Y1 Y2 G_lo G_hi nonlinear fixed_a fast_exp")
+# i, j: each copy's nodes; ti, tj: where `_scatter` adds its terms (the same, or the chunk's sink N + 8 c
+# for a node of another chunk)
+Elements = namedtuple("Elements", "i j ti tj L " + " ".join(PARAMS) + " Y1 Y2 G_lo G_hi nonlinear fixed_a fast_exp")
 Work = namedtuple("Work", "d l2 dd Y Tl adot flag")      # per-element scratch of the element pass
 Solve = namedtuple("Solve", "elem y c1 B f1 f2 c_max G_lo G_hi t")   # the compacted lists of `_newton`
-# span (C + 1): chunk c's element copies; nodes (C + 1): its nodes; ptr (N + 1), term, sign: node p's
-# terms (element copy, +1 at the start node or -1 at the end node) in golden's order
-Chunks = namedtuple("Chunks", "span nodes ptr term sign")
+# span (C + 1): chunk c's element copies (element order); nodes (C + 1): its nodes
+Chunks = namedtuple("Chunks", "span nodes")
 Topo = namedtuple("Topo", "on pairs K C eps")
 FloorP = namedtuple("FloorP", "on height K C mu k_f")
 Coll = namedtuple("Coll", "on vertices facets neighbour_keys n_nodes K C threshold mu k_f")
@@ -90,7 +91,7 @@ def _at(p, e):
     return p if np.ndim(p) == 0 else p[e]
 
 
-@overload(_at, inline="always")
+@overload(_at)
 def _at_compiled(p, e):
     if isinstance(p, types.Array):
         return lambda p, e: p[e]
@@ -369,29 +370,23 @@ def _solved(q0, n, a, wk, sv):
 
 @_jit(inline="always")
 def _elements(xt, vt, a, el, wk, sv, e0, e1, integrate, dt):
-    """element_forces on the element copies e0 <= e < e1, in blocks of BLOCK (each pass's scratch stays in
-    the cache for the next): their T/l, d and adot into wk; with `integrate` their a steps too (a <- clip(a
-    + dt adot), golden's last line; nothing else reads a). False if a solve did not converge."""
-    ok = True
-    b0 = e0
-    while b0 < e1:
-        b1 = min(b0 + BLOCK, e1)
-        _edges(xt, vt, el.i, el.j, wk.d, wk.l2, wk.dd, b0, b1)
-        if el.fixed_a:
-            _rigid_damper(a, wk.l2, wk.dd, el.k1, el.c1, el.L, wk.Tl, wk.adot, b0, b1)
-        else:
-            _linear_piece(a, wk.l2, wk.dd, el.k1, el.c1, el.L, el.c_min, el.c_max, el.Y1, el.Y2, el.a_min,
-                          el.a_max, wk.Y, wk.Tl, wk.adot, wk.flag, b0, b1)
-            n, fine = _finish(a, el, wk, sv, b0, b1)
-            ok &= fine
-            if n:
-                ok &= _newton(b0, n, sv.y, sv.c1, sv.B, sv.f1, sv.f2, sv.c_max, sv.G_lo, sv.G_hi, sv.t)
-                _solved(b0, n, a, wk, sv)
-            if integrate:
-                a_min, a_max, adot = el.a_min, el.a_max, wk.adot
-                for e in range(b0, b1):
-                    a[e] = min(max(a[e] + adot[e] * dt, _at(a_min, e)), _at(a_max, e))
-        b0 = b1
+    """element_forces on the element copies e0 <= e < e1: their T/l, d and adot into wk; with `integrate`
+    their a steps too (a <- clip(a + dt adot), golden's last line; nothing else reads a). False if a solve
+    did not converge."""
+    _edges(xt, vt, el.i, el.j, wk.d, wk.l2, wk.dd, e0, e1)
+    if el.fixed_a:
+        _rigid_damper(a, wk.l2, wk.dd, el.k1, el.c1, el.L, wk.Tl, wk.adot, e0, e1)
+        return True
+    _linear_piece(a, wk.l2, wk.dd, el.k1, el.c1, el.L, el.c_min, el.c_max, el.Y1, el.Y2, el.a_min,
+                  el.a_max, wk.Y, wk.Tl, wk.adot, wk.flag, e0, e1)
+    n, ok = _finish(a, el, wk, sv, e0, e1)
+    if n:
+        ok &= _newton(e0, n, sv.y, sv.c1, sv.B, sv.f1, sv.f2, sv.c_max, sv.G_lo, sv.G_hi, sv.t)
+        _solved(e0, n, a, wk, sv)
+    if integrate:
+        a_min, a_max, adot = el.a_min, el.a_max, wk.adot
+        for e in range(e0, e1):
+            a[e] = min(max(a[e] + adot[e] * dt, _at(a_min, e)), _at(a_max, e))
     return ok
 
 
@@ -641,28 +636,62 @@ def _collisions(x, v, cl, out):
 # ---------------------------------------------------------------- the step (golden/model.py)
 
 @_jit(inline="always")
-def _gather(ch, Tl, d, Ft, p0, p1):
-    """Golden's scatter as a sum per node p0 <= p < p1: +-T/l d of each of node p's elements (ch.term,
-    ch.sign) from 0.0 in element order, as the sparse product sums them."""
-    ptr, term, sign = ch.ptr, ch.term, ch.sign
+def _scatter(ti, tj, Tl, d, Ft, e0, e1):
+    """Golden's scatter from the element copies e0 <= e < e1: +T/l d to the start node ti, -T/l d to the end
+    node tj (a node of another chunk: the chunk's sink), in element order as golden's sparse product adds
+    each node's terms. Consecutive elements of one start node add into a register (in the same order: none
+    of them ends at that node)."""
     if Ft.shape[0] == 2:                  # the common case in one pass
-        d0, d1, F0, F1 = d[0], d[1], Ft[0], Ft[1]
-        for p in range(p0, p1):
-            f0 = f1 = 0.0
-            for r in range(ptr[p], ptr[p + 1]):
-                e, s = term[r], sign[r]
-                f0 += s * (Tl[e] * d0[e])
-                f1 += s * (Tl[e] * d1[e])
-            F0[p], F1[p] = f0, f1
+        F0, F1, d0, d1 = Ft[0], Ft[1], d[0], d[1]
+        cur = ti[e0]
+        a0, a1 = F0[cur], F1[cur]
+        for e in range(e0, e1):
+            i, j = ti[e], tj[e]
+            if i != cur:
+                F0[cur], F1[cur] = a0, a1
+                cur = i
+                a0, a1 = F0[i], F1[i]
+            t = Tl[e]
+            f0, f1 = t * d0[e], t * d1[e]
+            a0 += f0
+            a1 += f1
+            F0[j] -= f0
+            F1[j] -= f1
+        F0[cur], F1[cur] = a0, a1
         return
     for k in range(Ft.shape[0]):
-        dk, Fk = d[k], Ft[k]
+        Fk, dk = Ft[k], d[k]
+        cur = ti[e0]
+        acc = Fk[cur]
+        for e in range(e0, e1):
+            i = ti[e]
+            if i != cur:
+                Fk[cur] = acc
+                cur = i
+                acc = Fk[i]
+            f = Tl[e] * dk[e]
+            acc += f
+            Fk[tj[e]] -= f
+        Fk[cur] = acc
+
+
+@_jit(inline="always")
+def _chunk(xr, vr, a, el, wk, sv, Ft, e0, e1, p0, p1, integrate, dt):
+    """Golden.forces' element part for the nodes p0 <= p < p1 from their element copies e0 <= e < e1, in
+    blocks of BLOCK (each block's scratch stays in the cache from one pass to the next): `_elements`, then
+    `_scatter` into Ft (zero first). False if a solve did not converge."""
+    for k in range(Ft.shape[0]):
+        Fk = Ft[k]
         for p in range(p0, p1):
-            f = 0.0
-            for r in range(ptr[p], ptr[p + 1]):
-                e = term[r]
-                f += sign[r] * (Tl[e] * dk[e])
-            Fk[p] = f
+            Fk[p] = 0.0
+    ok = True
+    b0 = e0
+    while b0 < e1:
+        b1 = min(b0 + BLOCK, e1)
+        ok &= _elements(xr, vr, a, el, wk, sv, b0, b1, integrate, dt)
+        _scatter(el.ti, el.tj, wk.Tl, wk.d, Ft, b0, b1)
+        b0 = b1
+    return ok
 
 
 @_jit(inline="always")
@@ -720,9 +749,8 @@ def _worker(w, threads, n_steps, step, t_forces, integrate, X, V, a, el, tp, fl,
             c = (mine + q) % C
             if _claim(sync, CLAIMS + 8 * c, s):
                 e0, e1, p0, p1 = ch.span[c], ch.span[c + 1], ch.nodes[c], ch.nodes[c + 1]
-                if not _elements(xr, vr, a, el, wk, sv, e0, e1, integrate, dt):
+                if not _chunk(xr, vr, a, el, wk, sv, Ft, e0, e1, p0, p1, integrate, dt):
                     _atomic_add(sync, FAILED, 1)
-                _gather(ch, wk.Tl, wk.d, Ft, p0, p1)
                 if not split:
                     _integrate(xr, vr, xw, vw, Ft, nd, p0, p1)
                 _atomic_add(sync, DONE, 1)
@@ -755,9 +783,9 @@ def _column(value, E: int) -> np.ndarray:
 
 
 def _chunks(i: np.ndarray, j: np.ndarray, N: int, C: int):
-    """Node chunks with equal shares of the elements (by start node), each chunk's element copies (every
-    element with a node in the chunk, in element order), and each node's terms in golden's order. Returns
-    (Chunks, the element of each copy, the copies that own their element: those in their start node's chunk)."""
+    """Node chunks with equal shares of the elements (by start node) and each chunk's element copies (every
+    element with a node in the chunk, in element order). Returns (Chunks, the element of each copy, the
+    copies that own their element: those in their start node's chunk, and where each copy's terms go)."""
     E = len(i)
     starts = np.bincount(i, minlength=N)
     cut = np.searchsorted(np.cumsum(starts), (np.arange(1, C) * E) // C, side="right")
@@ -773,19 +801,10 @@ def _chunks(i: np.ndarray, j: np.ndarray, N: int, C: int):
     copy_chunk, copy_elem = copy_chunk[order], copy_elem[order]
     owner = order < E                                                   # the copy in the start node's chunk
     span = np.concatenate([[0], np.cumsum(np.bincount(copy_chunk, minlength=C))])
-    # the terms: a copy adds +T/l d at its element's start node if that node is in its chunk, -T/l d at the end node
-    slot = np.arange(len(copy_elem))
-    at_i, at_j = ci[copy_elem] == copy_chunk, cj[copy_elem] == copy_chunk
-    t_node = np.concatenate([i[copy_elem][at_i], j[copy_elem][at_j]])
-    t_slot = np.concatenate([slot[at_i], slot[at_j]])
-    t_sign = np.concatenate([np.ones(int(at_i.sum())), -np.ones(int(at_j.sum()))])
-    t_elem = copy_elem[t_slot]
-    order = np.lexsort((t_elem, t_node))                                # by node, then in element order
-    ptr = np.concatenate([[0], np.cumsum(np.bincount(t_node, minlength=N))])
-    index = np.uint32 if len(copy_elem) < 2 ** 32 else np.uint64
-    ch = Chunks(span.astype(np.uint64), nodes.astype(np.uint64), ptr.astype(np.uint64),
-                t_slot[order].astype(index), t_sign[order])
-    return ch, copy_elem, owner
+    sink = N + 8 * copy_chunk                           # each chunk's sink on its own cache line
+    ti = np.where(ci[copy_elem] == copy_chunk, i[copy_elem], sink)
+    tj = np.where(cj[copy_elem] == copy_chunk, j[copy_elem], sink)
+    return Chunks(span.astype(np.uint64), nodes.astype(np.uint64)), copy_elem, owner, ti, tj
 
 
 class Cpu:
@@ -800,13 +819,14 @@ class Cpu:
         C = max(1, min(int(chunks or self.threads * CHUNKS_PER_THREAD), N))
         p = sys.elem
         edges = np.asarray(sys.edges, np.int64)
-        self.ch, self._copy, owner = _chunks(edges[:, 0], edges[:, 1], N, C)
+        self.ch, self._copy, owner, ti, tj = _chunks(edges[:, 0], edges[:, 1], N, C)
         self._owned = np.flatnonzero(owner)                 # the copies that give each element's a back
         self._owned_elem = self._copy[self._owned]
         copy = self._copy
         Ec = len(copy)
         # unsigned indices: no negative-index wraparound in the gathers
-        i, j = (np.ascontiguousarray(edges[copy, c], np.uint32 if N < 2 ** 32 else np.uint64) for c in (0, 1))
+        index = np.uint32 if N + 8 * C < 2 ** 32 else np.uint64
+        i, j, ti, tj = (np.ascontiguousarray(v, index) for v in (edges[copy, 0], edges[copy, 1], ti, tj))
         cols = {f: _column(getattr(p, f), E) for f in PARAMS}
         c1, cmin, cmax = cols["c1"], cols["c_min"], cols["c_max"]
         B, f1, f2 = cols["B"], cols["f1"], cols["f2"]
@@ -819,7 +839,7 @@ class Cpu:
         # a uniform material (every parameter the same for every element): scalars, as golden's _compact
         uniform = E > 0 and all(np.array_equal(v, np.full(E, v[0]), equal_nan=True) for v in every.values())
         every = {k: (float(v[0]) if uniform else np.ascontiguousarray(v[copy])) for k, v in every.items()}
-        self.el = Elements(i, j, np.ascontiguousarray(_column(p.L, E)[copy]), *(every[f] for f in PARAMS),
+        self.el = Elements(i, j, ti, tj, np.ascontiguousarray(_column(p.L, E)[copy]), *(every[f] for f in PARAMS),
                            *(every[f] for f in ("Y1", "Y2", "G_lo", "G_hi")), bool(p.nonlinear), bool(p.fixed_a),
                            bool(np.all(exponent <= EXP_MAX)))
         no_pairs = np.zeros((0, D + 1), np.int64)
@@ -844,7 +864,7 @@ class Cpu:
                         np.asarray(sys.gravity, float) * sys.dt, float(sys.dt))
         self._X, self._V = np.zeros((2, D, N)), np.zeros((2, D, N))
         self._a = np.zeros(Ec)
-        self._Ft = np.zeros((D, N))
+        self._Ft = np.zeros((D, N + 8 * C))           # and the chunks' sinks (`_scatter`)
         self._wk = Work(np.zeros((D, Ec)), *(np.zeros(Ec) for _ in range(5)), np.zeros(Ec, np.bool_))
         self._sv = Solve(np.zeros(Ec, np.int64), *(np.zeros(Ec) for _ in range(9)))
         self._sync = np.zeros(CLAIMS + 8 * (2 * C + 1), np.int64)
@@ -899,7 +919,7 @@ class Cpu:
         adot[self._owned_elem] = self._wk.adot[self._owned]
         self.flagged = np.zeros(self.sys.n_elements, np.bool_)
         self.flagged[self._owned_elem] = self._wk.flag[self._owned]
-        return self._Ft.T.copy(), adot
+        return self._Ft[:, :self.sys.n_nodes].T.copy(), adot
 
 
 class _FromState(Cpu):
