@@ -66,12 +66,14 @@ BLOCK = np.uint64(1024)     # elements per block of the element passes (their sc
 
 # Inside loops, arrays are locals: a namedtuple's array costs a reference count on every access.
 PARAMS = ("k1", "c1", "a_min", "a_max", "c_min", "c_max", "B", "f1", "f2")
-# Every parameter (PARAMS, and Y1, Y2: Phi's knees; G_lo, G_hi: G at f1 and f2, the chord the solve starts
-# from) is a float when the material is uniform, else an array over the element copies; L always an array.
+# Every parameter (PARAMS, and Y1, Y2: Phi's knees; S_max, S_min, R_max, R_min: its slopes, `_linear_piece`;
+# G_lo, G_hi: G at f1 and f2, the chord the solve starts from) is a float when the material is uniform,
+# else an array over the element copies; L always an array.
 # fast_exp: every damper's exponent B (t - f1) stays below EXP_MAX, so the vectorised solve applies.
 # i, j: each copy's nodes; ti, tj: where `_scatter` adds its terms (the same, or the chunk's sink N + 8 c
 # for a node of another chunk)
-Elements = namedtuple("Elements", "i j ti tj L " + " ".join(PARAMS) + " Y1 Y2 G_lo G_hi nonlinear fixed_a fast_exp")
+Elements = namedtuple("Elements", "i j ti tj L " + " ".join(PARAMS)
+                      + " Y1 Y2 S_max S_min R_max R_min G_lo G_hi nonlinear fixed_a fast_exp")
 Work = namedtuple("Work", "d l2 dd Y Tl adot flag")      # per-element scratch of the element pass
 Solve = namedtuple("Solve", "elem y c1 B f1 f2 c_max G_lo G_hi t")   # the compacted lists of `_newton`
 # span (C + 1): chunk c's element copies (element order); nodes (C + 1): its nodes
@@ -269,20 +271,24 @@ def _rigid_damper(a, l2, dd, k1, c1, L, Tl, adot, e0, e1):
 
 
 @_jit(inline="always")
-def _linear_piece(a, l2, dd, k1, c1v, L, c_min, c_max, Y1, Y2, a_min, a_max, Yv, Tl, adot, flag, e0, e1):
-    """Phi's linear pieces for every element (a constant damper: c_min = c_max, knees at infinity)."""
+def _linear_piece(a, l2, dd, k1, c1, L, Y1, Y2, S_max, S_min, R_max, R_min, a_min, a_max, Yv, Tl, adot, flag,
+                  e0, e1):
+    """Phi's linear pieces for every element (a constant damper: c_min = c_max, knees at infinity): T = Y S
+    and w' = Y / R with c2 = c_max below the knee Y1, c_min above, S = c2 / (c1 + c2) and R = c1 + c2 (the
+    same words as golden's, made once: one division less per element)."""
     for e in range(e0, e1):
         l = np.sqrt(l2[e])
         inv_l = 1.0 / l
         ldot = dd[e] * inv_l
         ae = a[e]
-        c1 = _at(c1v, e)
-        Y = _at(k1, e) * (ae * l - L[e]) + c1 * ldot
+        Y = _at(k1, e) * (ae * l - L[e]) + _at(c1, e) * ldot
         Yv[e] = Y
         mag = abs(Y)
-        c2 = _at(c_max, e) if mag < _at(Y1, e) else _at(c_min, e)
-        Tl[e] = Y * (c2 / (c1 + c2)) * inv_l
-        adot[e] = ((1.0 - ae) * ldot - Y / (c1 + c2)) * inv_l
+        below = mag < _at(Y1, e)
+        S = _at(S_max, e) if below else _at(S_min, e)
+        R = _at(R_max, e) if below else _at(R_min, e)
+        Tl[e] = Y * S * inv_l
+        adot[e] = ((1.0 - ae) * ldot - Y / R) * inv_l
         flag[e] = (((_at(Y1, e) <= mag) & (mag < _at(Y2, e))) | (ae <= _at(a_min, e))
                    | (ae >= _at(a_max, e)))
 
@@ -296,23 +302,27 @@ def _finish(a, el, wk, sv, e0, e1):
                                                         el.c_max, el.B, el.f1, el.f2)
     l2, dd, Y, Tl, adot, flag = wk.l2, wk.dd, wk.Y, wk.Tl, wk.adot, wk.flag
     q, ok = e0, True
-    one = np.uint64(1)
-    for e in range(e0, e1):
-        if not flag[e]:
+    one, eight = np.uint64(1), np.uint64(8)
+    words = flag.view(np.uint64)                    # eight flags a word: most words are 0
+    for w in range(e0 // eight, (e1 + eight - one) // eight):
+        if words[w] == 0:
             continue
-        l = np.sqrt(l2[e])
-        inv_l = 1.0 / l
-        if el.fast_exp and _at(a_min, e) < a[e] < _at(a_max, e):
-            sv.elem[q], sv.y[q], sv.c1[q], sv.B[q], sv.f1[q], sv.f2[q], sv.c_max[q] = (
-                e, abs(Y[e]), _at(c1, e), _at(B, e), _at(f1, e), _at(f2, e), _at(c_max, e))
-            sv.G_lo[q], sv.G_hi[q] = _at(el.G_lo, e), _at(el.G_hi, e)
-            q += one
-            continue
-        T, adot[e] = _tension(_at(k1, e), _at(c1, e), _at(a_min, e), _at(a_max, e), L[e], _at(c_min, e),
-                              _at(c_max, e), _at(B, e), _at(f1, e), _at(f2, e), l, inv_l, dd[e] * inv_l, a[e],
-                              el.nonlinear)
-        Tl[e] = T * inv_l
-        ok &= not (np.isnan(T) and not np.isnan(Y[e]))     # a finite drive whose solve did not converge
+        for e in range(max(w * eight, e0), min(w * eight + eight, e1)):
+            if not flag[e]:
+                continue
+            l = np.sqrt(l2[e])
+            inv_l = 1.0 / l
+            if el.fast_exp and _at(a_min, e) < a[e] < _at(a_max, e):
+                sv.elem[q], sv.y[q], sv.c1[q], sv.B[q], sv.f1[q], sv.f2[q], sv.c_max[q] = (
+                    e, abs(Y[e]), _at(c1, e), _at(B, e), _at(f1, e), _at(f2, e), _at(c_max, e))
+                sv.G_lo[q], sv.G_hi[q] = _at(el.G_lo, e), _at(el.G_hi, e)
+                q += one
+                continue
+            T, adot[e] = _tension(_at(k1, e), _at(c1, e), _at(a_min, e), _at(a_max, e), L[e], _at(c_min, e),
+                                  _at(c_max, e), _at(B, e), _at(f1, e), _at(f2, e), l, inv_l, dd[e] * inv_l, a[e],
+                                  el.nonlinear)
+            Tl[e] = T * inv_l
+            ok &= not (np.isnan(T) and not np.isnan(Y[e]))     # a finite drive whose solve did not converge
     return q - e0, ok
 
 
@@ -377,8 +387,8 @@ def _elements(xt, vt, a, el, wk, sv, e0, e1, integrate, dt):
     if el.fixed_a:
         _rigid_damper(a, wk.l2, wk.dd, el.k1, el.c1, el.L, wk.Tl, wk.adot, e0, e1)
         return True
-    _linear_piece(a, wk.l2, wk.dd, el.k1, el.c1, el.L, el.c_min, el.c_max, el.Y1, el.Y2, el.a_min,
-                  el.a_max, wk.Y, wk.Tl, wk.adot, wk.flag, e0, e1)
+    _linear_piece(a, wk.l2, wk.dd, el.k1, el.c1, el.L, el.Y1, el.Y2, el.S_max, el.S_min, el.R_max, el.R_min,
+                  el.a_min, el.a_max, wk.Y, wk.Tl, wk.adot, wk.flag, e0, e1)
     n, ok = _finish(a, el, wk, sv, e0, e1)
     if n:
         ok &= _newton(e0, n, sv.y, sv.c1, sv.B, sv.f1, sv.f2, sv.c_max, sv.G_lo, sv.G_hi, sv.t)
@@ -834,13 +844,15 @@ class Cpu:
         with np.errstate(invalid="ignore", over="ignore"):          # constant dampers: knees at infinity
             chord = (f1 + c1 * (f1 * np.exp(B * (f1 - f1)) / cmax), f2 + c1 * (f2 * np.exp(B * (f2 - f1)) / cmax))
             exponent = np.where(np.isfinite(f2), B * (f2 - f1), 0.0)
-        derived = dict(Y1=knees[0], Y2=knees[1], G_lo=chord[0], G_hi=chord[1])
+        derived = dict(Y1=knees[0], Y2=knees[1], S_max=cmax / (c1 + cmax), S_min=cmin / (c1 + cmin),
+                       R_max=c1 + cmax, R_min=c1 + cmin, G_lo=chord[0], G_hi=chord[1])
         every = {**cols, **derived}
         # a uniform material (every parameter the same for every element): scalars, as golden's _compact
         uniform = E > 0 and all(np.array_equal(v, np.full(E, v[0]), equal_nan=True) for v in every.values())
         every = {k: (float(v[0]) if uniform else np.ascontiguousarray(v[copy])) for k, v in every.items()}
         self.el = Elements(i, j, ti, tj, np.ascontiguousarray(_column(p.L, E)[copy]), *(every[f] for f in PARAMS),
-                           *(every[f] for f in ("Y1", "Y2", "G_lo", "G_hi")), bool(p.nonlinear), bool(p.fixed_a),
+                           *(every[f] for f in ("Y1", "Y2", "S_max", "S_min", "R_max", "R_min", "G_lo", "G_hi")),
+                           bool(p.nonlinear), bool(p.fixed_a),
                            bool(np.all(exponent <= EXP_MAX)))
         no_pairs = np.zeros((0, D + 1), np.int64)
         tp = sys.topology
@@ -865,7 +877,8 @@ class Cpu:
         self._X, self._V = np.zeros((2, D, N)), np.zeros((2, D, N))
         self._a = np.zeros(Ec)
         self._Ft = np.zeros((D, N + 8 * C))           # and the chunks' sinks (`_scatter`)
-        self._wk = Work(np.zeros((D, Ec)), *(np.zeros(Ec) for _ in range(5)), np.zeros(Ec, np.bool_))
+        self._wk = Work(np.zeros((D, Ec)), *(np.zeros(Ec) for _ in range(5)),
+                        np.zeros(-(-Ec // 8) * 8, np.bool_))       # whole words for `_finish`
         self._sv = Solve(np.zeros(Ec, np.int64), *(np.zeros(Ec) for _ in range(9)))
         self._sync = np.zeros(CLAIMS + 8 * (2 * C + 1), np.int64)
 
