@@ -80,7 +80,7 @@ Solve = namedtuple("Solve", "elem y c1 B f1 f2 c_max G_lo G_hi t")   # the compa
 Chunks = namedtuple("Chunks", "span nodes")
 Topo = namedtuple("Topo", "on pairs K C eps")
 FloorP = namedtuple("FloorP", "on height K C mu k_f")
-Coll = namedtuple("Coll", "on vertices facets neighbour_keys n_nodes K C threshold mu k_f")
+Coll = namedtuple("Coll", "on vertices facets nbr_ptr nbr K C threshold mu k_f")
 Loads = namedtuple("Loads", "ptr nodes force start end")
 Nodes = namedtuple("Nodes", "inv_m_dt free g_dt dt")
 # the counters of a run (int64 words, each on its own cache line): chunks done, a solve that failed, then
@@ -546,27 +546,29 @@ def _search(sorted_keys, key, right):
 
 
 @_jit(inline="always")
-def _excluded(nk, n_nodes, p, fn):
-    """Collision._excluded: p is a vertex of the facet or joined to one of them by an element (nk: the
-    sorted keys a * n_nodes + b of joined pairs)."""
+def _exclude(nbr_ptr, nbr, fn, s, mark):
+    """Collision._excluded for the facet s with nodes fn: mark[p] = s for every p that is a vertex of the facet
+    or joined to one of them by an element (nbr: each node's joined nodes from nbr_ptr[node], golden's
+    neighbour_keys by rows; both orders are there)."""
     for m in range(len(fn)):
-        if fn[m] == p:
-            return True
-    for m in range(len(fn)):
-        key = p * n_nodes + fn[m]
-        pos = min(_search(nk, key, False), len(nk) - 1)
-        if nk[pos] == key:
-            return True
-    return False
+        mark[fn[m]] = s
+        for q in range(nbr_ptr[fn[m]], nbr_ptr[fn[m] + 1]):
+            mark[nbr[q]] = s
+
+
+@_jit(inline="always")
+def _outward(x, fn, e1, e2, n):
+    """facet_frame's unit normal of the facet fn into n, outward (golden flips it in 2D)."""
+    _normal(x, fn, e1, e2, n)
+    if x.shape[1] == 2:
+        n[0], n[1] = -n[0], -n[1]
 
 
 @_jit(inline="always")
 def _contact(x, v, K, C, threshold, mu, k_f, p, fn, out, n, w, vrel, f, e1, e2, r):
-    """The narrow phase of Collision.forces for the candidate (vertex p, facet fn); n .. r: scratch (D,)."""
+    """The narrow phase of Collision.forces for the candidate (vertex p, facet fn) with the facet's outward
+    normal n (`_outward`); w .. r: scratch (D,)."""
     D = x.shape[1]
-    _normal(x, fn, e1, e2, n)
-    if D == 2:                              # outward normal
-        n[0], n[1] = -n[0], -n[1]
     _diff(x, p, fn[0], r)
     d = _dot(r, n)
     if not abs(d) <= threshold:
@@ -588,18 +590,12 @@ def _contact(x, v, K, C, threshold, mu, k_f, p, fn, out, n, w, vrel, f, e1, e2, 
 
 
 @_jit()
-def _cell_keys(cells, stride):
-    keys = np.zeros(len(cells), np.int64)
-    for q in range(len(cells)):
-        for k in range(len(stride)):
-            keys[q] += cells[q, k] * stride[k]
-    return keys
-
-
-@_jit()
 def _collisions(x, v, cl, out):
-    """Collision.forces: golden's grid broad phase, then the narrow phase on each candidate."""
-    _, vertices, facets, nk, n_nodes, K, C, threshold, mu, k_f = cl
+    """Collision.forces: golden's grid broad phase, then the narrow phase on each candidate (each facet,
+    the 3^D cells around its centre, the vertices of each cell in key order). The vertices of a cell come
+    from a table indexed by the key when the grid is small (a binary search otherwise); no temporary
+    arrays but the grid's."""
+    _, vertices, facets, nbr_ptr, nbr, K, C, threshold, mu, k_f = cl
     S, D = facets.shape
     V = len(vertices)
     if S == 0 or V == 0:
@@ -607,39 +603,78 @@ def _collisions(x, v, cl, out):
     centre = np.zeros((S, D))
     for s in range(S):
         for m in range(D):
-            centre[s] += x[facets[s, m]]
-        centre[s] /= D
+            for k in range(D):
+                centre[s, k] += x[facets[s, m], k]
+        for k in range(D):
+            centre[s, k] /= D
     radius = 0.0
     for s in range(S):
         for m in range(D):
-            radius = max(radius, np.sqrt(np.sum((x[facets[s, m]] - centre[s]) ** 2)))
+            r2 = 0.0
+            for k in range(D):
+                r2 += (x[facets[s, m], k] - centre[s, k]) ** 2
+            radius = max(radius, np.sqrt(r2))
     h = radius + threshold
     lo = np.empty(D)
     for k in range(D):
-        lo[k] = min(np.min(x[vertices, k]), np.min(centre[:, k])) - h
-    cv = np.floor((x[vertices] - lo) / h).astype(np.int64)
-    cc = np.floor((centre - lo) / h).astype(np.int64)
+        low = np.inf
+        for q in range(V):
+            low = min(low, x[vertices[q], k])
+        for s in range(S):
+            low = min(low, centre[s, k])
+        lo[k] = low - h
+    cv = np.empty((V, D), np.int64)
+    cc = np.empty((S, D), np.int64)
+    top = np.zeros(D, np.int64)
+    for k in range(D):
+        for q in range(V):
+            cv[q, k] = np.int64(np.floor((x[vertices[q], k] - lo[k]) / h))
+            top[k] = max(top[k], cv[q, k])
+        for s in range(S):
+            cc[s, k] = np.int64(np.floor((centre[s, k] - lo[k]) / h))
+            top[k] = max(top[k], cc[s, k])
     stride = np.ones(D, np.int64)
     for k in range(1, D):
-        stride[k] = stride[k - 1] * (max(np.max(cv[:, k - 1]), np.max(cc[:, k - 1])) + 2)
-    kv = _cell_keys(cv, stride)
+        stride[k] = stride[k - 1] * (top[k - 1] + 2)
+    cells = stride[D - 1] * (top[D - 1] + 2)
+    kv = np.zeros(V, np.int64)
+    for q in range(V):
+        for k in range(D):
+            kv[q] += cv[q, k] * stride[k]
     order = np.argsort(kv, kind="mergesort")
     kv = kv[order]
-    base = _cell_keys(cc, stride)
+    table = cells <= 8 * (V + S) + 4096             # a cell's vertices are order[start[key]:start[key + 1]]
+    start = np.zeros(cells + 1 if table else 1, np.int64)
+    if table:
+        for q in range(V):
+            start[kv[q] + 1] += 1
+        for key in range(cells):
+            start[key + 1] += start[key]
     sc = np.empty((7, D))
     n, w, vrel, f, e1, e2, r = sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6]
     fn = np.empty(D, facets.dtype)
+    mark = np.full(x.shape[0], -1, np.int64)
     for s in range(S):
-        for m in range(D):
-            fn[m] = facets[s, m]
+        base = 0
+        for k in range(D):
+            fn[k] = facets[s, k]
+            base += cc[s, k] * stride[k]
+        _exclude(nbr_ptr, nbr, fn, s, mark)
+        _outward(x, fn, e1, e2, n)
         for o in range(3 ** D):
-            key, rest = base[s], o
+            key, rest = base, o
             for k in range(D):
                 key += (rest % 3 - 1) * stride[k]
                 rest //= 3
-            for q in range(_search(kv, key, False), _search(kv, key, True)):
+            if table:
+                if key < 0 or key >= cells:
+                    continue
+                first, last = start[key], start[key + 1]
+            else:
+                first, last = _search(kv, key, False), _search(kv, key, True)
+            for q in range(first, last):
                 p = vertices[order[q]]
-                if not _excluded(nk, n_nodes, p, fn):
+                if mark[p] != s:
                     _contact(x, v, K, C, threshold, mu, k_f, p, fn, out, n, w, vrel, f, e1, e2, r)
 
 
@@ -862,11 +897,15 @@ class Cpu:
         self.fl = (FloorP(True, float(fl.height), float(fl.K), float(fl.C), float(fl.mu), float(fl.k_f))
                    if fl is not None else FloorP(False, 0.0, 0.0, 0.0, 0.0, 0.0))
         cl = sys.collision
-        self.cl = (Coll(True, np.ascontiguousarray(cl.vertices, np.int64), np.ascontiguousarray(cl.facets, np.int64),
-                        np.ascontiguousarray(cl.neighbour_keys, np.int64), int(cl.n_nodes), float(cl.K), float(cl.C),
-                        float(cl.threshold), float(cl.mu), float(cl.k_f))
-                   if cl is not None else Coll(False, np.zeros(0, np.int64), np.zeros((0, D), np.int64),
-                                               np.zeros(1, np.int64), N, 0.0, 0.0, 0.0, 0.0, 0.0))
+        if cl is not None:          # golden's sorted keys a * n_nodes + b of joined nodes, as rows a of b's
+            keys = np.asarray(cl.neighbour_keys, np.int64)
+            nbr_ptr = np.concatenate([[0], np.cumsum(np.bincount(keys // cl.n_nodes, minlength=N))])
+            self.cl = Coll(True, np.ascontiguousarray(cl.vertices, np.int64), np.ascontiguousarray(cl.facets, np.int64),
+                           nbr_ptr.astype(np.int64), np.ascontiguousarray(keys % cl.n_nodes), float(cl.K),
+                           float(cl.C), float(cl.threshold), float(cl.mu), float(cl.k_f))
+        else:
+            self.cl = Coll(False, np.zeros(0, np.int64), np.zeros((0, D), np.int64), np.zeros(N + 1, np.int64),
+                           np.zeros(0, np.int64), 0.0, 0.0, 0.0, 0.0, 0.0)
         nodes = [np.unique(np.asarray(l.nodes, np.int64)) for l in sys.loads]    # F[nodes] += f: once a node
         self.ld = Loads(np.concatenate([[0], np.cumsum([len(s) for s in nodes])]).astype(np.int64),
                         np.concatenate(nodes + [np.zeros(0, np.int64)]),
