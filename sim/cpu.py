@@ -21,20 +21,20 @@ element is passed as scalars (golden's ElementParams does the same), so these pa
 state. Golden's scatter (a sparse product: each node's sum over its elements in element order) runs
 over the elements in element order (`_scatter`), so the sums are golden's to the bit.
 
-The nodes are cut into chunks (ranges of node numbers); each chunk holds its own copy of every element
-that touches one of its nodes, so that one chunk is a whole step for its nodes: its elements, their sums
-at its nodes, the integration (`_chunk`). Elements across a cut are computed by both chunks (the same
-arithmetic on the same words: the copies stay equal to the bit), and positions and velocities are double
--buffered (a step reads one buffer and writes the other), so chunks never wait for each other inside a
-step. `advance(state, n)` runs n steps in one compiled call (`_worker`, no Python per step). With
-`threads` > 1 every thread runs the worker inside one parallel region for the whole run: each step,
-a thread claims chunks (an atomic compare-and-swap of the chunk's step number), its own first, then any
-left unclaimed (so a thread that runs alone or first does them all and nothing can deadlock), and a
-thread starts a step when every chunk of the step before is done. Contact terms and loads need every
-node's sum first: with them a step is three passes (chunks without integration, `_extras` once, the
-integration in chunks). `threads=None` chooses by size (`PARALLEL_MIN_ELEMENTS`, measured with
-`rheo bench --backend cpu`). The first use compiles (about a minute); `cache=True` keeps the machine code
-beside this file for later runs.
+The nodes are cut into chunks (ranges of node numbers, one per thread); each chunk holds its own copy of
+every element that touches one of its nodes, so that one chunk is a whole step for its nodes: its elements
+and their sums at its nodes (`_chunk`, in blocks whose scratch stays in the cache), then the integration
+of its nodes. Elements across a cut are computed by both chunks (the same arithmetic on the same words:
+the copies stay equal to the bit), and positions and velocities are double-buffered (a step reads one
+buffer and writes the other), so chunks never wait for each other inside a step. `advance(state, n)` runs
+n steps in one compiled call (`_worker`, no Python per step). With `threads` > 1 every thread runs the
+worker inside one parallel region for the whole run: each step, a thread claims chunks (an atomic
+compare-and-swap of the chunk's step number), its own first, then any left unclaimed (so a thread that
+runs alone or late takes them all and nothing can deadlock), and starts the next step when every chunk of
+this one is done (spinning, then yielding its core). Contact terms and loads need every node's sum first:
+with them a step is three passes (chunks without integration, `_extras` once, the integration in chunks).
+`threads=None` chooses by size (`PARALLEL_MIN_ELEMENTS`, measured with `rheo bench --backend cpu`). The
+first use compiles (a minute or two); `cache=True` keeps the machine code beside this file for later runs.
 """
 from __future__ import annotations
 
@@ -59,9 +59,12 @@ def _jit(**flags):
 
 
 SOLVE_RTOL, SOLVE_ATOL, SOLVE_MAX_ITER = 1e-12, 1e-300, 100   # golden/elements.py's
-# Below this many elements one thread is as fast as two or faster on this 2-core machine (measured below)
-PARALLEL_MIN_ELEMENTS = 30_000
-CHUNKS_PER_THREAD = 1       # node chunks per thread
+# Below this many elements one thread is as fast as two or faster on this 2-core machine (the benchmark
+# square, 1 thread against 2, us per step, median of 9 interleaved rounds, machine shared with other jobs:
+# 1e3 elements 20.5 against 27.3, 3e3 35.8 against 36.1, 1e4 104 against 75, 3e4 321 against 178, 1e5 1393
+# against 590)
+PARALLEL_MIN_ELEMENTS = 5_000
+CHUNKS_PER_THREAD = 1       # node chunks per thread (2 per thread: 31.3, 40.4, 71.5, 197, 629 us above)
 BLOCK = np.uint64(1024)     # elements per block of the element passes (their scratch stays in L1)
 
 # Inside loops, arrays are locals: a namedtuple's array costs a reference count on every access.
@@ -151,13 +154,28 @@ SPINS = 2000        # reads of the counter before a waiting thread starts yieldi
 
 
 @_jit(inline="always")
-def _wait(sync, target):
-    """Until sync[DONE] >= target: `target` chunks of the run are done."""
+def _wait(sync, target, solo):
+    """Until sync[DONE] >= target: `target` chunks of the run are done (a thread alone: nothing to wait for)."""
+    if solo:
+        return
     spins = 0
     while _atomic_load(sync, DONE) < target:
         spins += 1
         if spins > SPINS:
             _yield_cpu()
+
+
+@_jit(inline="always")
+def _take(sync, slot, step, solo):
+    """Claim the chunk of `slot` for step `step` (a thread alone takes every chunk)."""
+    return solo or _claim(sync, slot, step)
+
+
+@_jit(inline="always")
+def _done(sync, solo):
+    """Count a chunk done."""
+    if not solo:
+        _atomic_add(sync, DONE, 1)
 
 
 # ---------------------------------------------------------------- the element (golden/elements.py)
@@ -783,35 +801,36 @@ def _worker(w, threads, n_steps, step, t_forces, integrate, X, V, a, el, tp, fl,
     split = extras or not integrate             # the node sums before the integration: three passes
     per_step = C + ((1 + C) if extras and integrate else (1 if extras else 0))
     mine = w * C // threads                      # the first chunk of this thread's share
+    solo = threads == 1                          # no counters to keep
     dt = nd.dt
     for s in range(n_steps):
         xr, vr, xw, vw = X[s % 2], V[s % 2], X[1 - s % 2], V[1 - s % 2]
         first = s * per_step
         if _atomic_load(sync, FAILED) != 0:
             return
-        _wait(sync, first)
+        _wait(sync, first, solo)
         for q in range(C):
             c = (mine + q) % C
-            if _claim(sync, CLAIMS + 8 * c, s):
+            if _take(sync, CLAIMS + 8 * c, s, solo):
                 e0, e1, p0, p1 = ch.span[c], ch.span[c + 1], ch.nodes[c], ch.nodes[c + 1]
                 if not _chunk(xr, vr, a, el, wk, sv, Ft, e0, e1, p0, p1, integrate, dt):
                     _atomic_add(sync, FAILED, 1)
                 if not split:
                     _integrate(xr, vr, xw, vw, Ft, nd, p0, p1)
-                _atomic_add(sync, DONE, 1)
+                _done(sync, solo)
         if extras:
-            _wait(sync, first + C)
-            if _claim(sync, CLAIMS + 8 * C, s):
+            _wait(sync, first + C, solo)
+            if _take(sync, CLAIMS + 8 * C, s, solo):
                 _extras(xr, vr, (step + s) * dt if integrate else t_forces, tp, fl, cl, ld, Ft)
-                _atomic_add(sync, DONE, 1)
+                _done(sync, solo)
             if integrate:
-                _wait(sync, first + C + 1)
+                _wait(sync, first + C + 1, solo)
                 for q in range(C):
                     c = (mine + q) % C
-                    if _claim(sync, CLAIMS + 8 * (C + 1 + c), s):
+                    if _take(sync, CLAIMS + 8 * (C + 1 + c), s, solo):
                         _integrate(xr, vr, xw, vw, Ft, nd, ch.nodes[c], ch.nodes[c + 1])
-                        _atomic_add(sync, DONE, 1)
-    _wait(sync, n_steps * per_step)               # the last step's chunks (some may be the other thread's)
+                        _done(sync, solo)
+    _wait(sync, n_steps * per_step, solo)         # the last step's chunks (some may be the other thread's)
 
 
 @_jit(parallel=True)
@@ -900,7 +919,8 @@ class Cpu:
         if cl is not None:          # golden's sorted keys a * n_nodes + b of joined nodes, as rows a of b's
             keys = np.asarray(cl.neighbour_keys, np.int64)
             nbr_ptr = np.concatenate([[0], np.cumsum(np.bincount(keys // cl.n_nodes, minlength=N))])
-            self.cl = Coll(True, np.ascontiguousarray(cl.vertices, np.int64), np.ascontiguousarray(cl.facets, np.int64),
+            self.cl = Coll(True, np.ascontiguousarray(cl.vertices, np.int64),
+                           np.ascontiguousarray(cl.facets, np.int64),
                            nbr_ptr.astype(np.int64), np.ascontiguousarray(keys % cl.n_nodes), float(cl.K),
                            float(cl.C), float(cl.threshold), float(cl.mu), float(cl.k_f))
         else:
