@@ -166,7 +166,7 @@ def test_random_scenes_reach_the_solve_and_the_stops(tmp_path):
             cpu.advance(st_, 10)
             _, adot = cpu.forces(st_, st_.step * system.dt)
             if p.nonlinear:
-                solved += int(np.count_nonzero(cpu._wk.flag & (st_.a > p.a_min) & (st_.a < p.a_max)))
+                solved += int(np.count_nonzero(cpu.flagged & (st_.a > p.a_min) & (st_.a < p.a_max)))
             stopped_lo += int(np.count_nonzero(st_.a <= p.a_min))
             stopped_hi += int(np.count_nonzero(st_.a >= p.a_max))
     assert solved > 0 and stopped_lo > 0 and stopped_hi > 0, (solved, stopped_lo, stopped_hi)

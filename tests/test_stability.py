@@ -323,7 +323,7 @@ def test_bittrue_trial_starts_from_the_golden_trials_perturbed_positions():
     s, st = _start(system, 1e-3, 100, seed=0, perturb=1e-6)
     stepper = bittrue_model("wide")(s, st)
     x, v, a = stepper.frame(stepper.initial_state())
-    lsb = 2.0 ** -stepper.bt.formats["x"].f * stepper.bt.units.to_length(1.0)
+    lsb = 2.0 ** -stepper.formats["x"].f * stepper.units.to_length(1.0)
     assert np.abs(x - st.x).max() <= lsb                          # the perturbed start, rounded to x
     assert np.abs(x - system.x0).max() > 10 * lsb                   # ... not the scene's own x0
 
