@@ -231,3 +231,128 @@ def test_the_runaway_rule_counts_windows_of_steps_not_frames():
     w.start(0)
     with pytest.raises(SimulationDiverged, match="over the limit"):
         w.add(RUNAWAY_WINDOW, int(w.limit) + 1, steps=RUNAWAY_WINDOW)     # a simulated core's read-back
+
+
+# ---------------------------------------------------------------- 4. whole outputs or none
+
+def _tree(d: Path) -> dict:
+    return {str(p.relative_to(d)): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+def test_an_output_directory_is_whole_or_untouched_and_keeps_the_users_files(tmp_path):
+    from sim.runfile import MARKER, output_directory
+    d = tmp_path / "out"
+    with output_directory(d) as tmp:
+        (tmp / "a.txt").write_text("1")
+        (tmp / "sub").mkdir()
+        (tmp / "sub" / "b.txt").write_text("2")
+    (d / "notes.md").write_text("the user's")              # a file the user put there
+    before = _tree(d)
+    for fail in (RuntimeError("disk"), KeyboardInterrupt()):
+        with pytest.raises(type(fail)):
+            with output_directory(d) as tmp:
+                (tmp / "a.txt").write_text("half")
+                raise fail
+        assert _tree(d) == before                          # byte-identical
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]    # no temporary left beside it
+    with output_directory(d) as tmp:                      # a complete new output replaces rheo's old files
+        (tmp / "c.txt").write_text("3")
+    after = _tree(d)
+    assert set(after) == {"c.txt", "notes.md", MARKER} and after["notes.md"] == b"the user's"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+@pytest.mark.parametrize("args, words", [
+    (["synth", "creep-1d", "--device", "ecp5-1k", "--out", "{dir}"], ["unknown device", "ecp5-1k"]),
+    (["verilog", "creep-1d", "--lanes", "10000", "--out", "{dir}"], ["--lanes", "1..64"]),
+    (["simulate", "creep-1d", "--out", "{existing_dir}.npz"], ["is an existing directory"]),
+    (["simulate", "creep-1d", "--out", "{existing_file}/r.npz"], ["is not a directory"]),
+    (["export", "{run}", "--vtk", "{existing_file}"], ["is an existing file"]),
+    (["report", "creep-1d", "--out", "{existing_file}"], ["is an existing file"]),
+    (["run", "--no-synth", "--out", "{existing_file}"], ["is an existing file"]),
+    (["show", "{run}", "--out", "{dir}.txt"], [".png or .gif"]),
+])
+def test_arguments_are_checked_before_any_work_and_nothing_is_left_behind(tmp_path, args, words):
+    (tmp_path / "existing_dir.npz").mkdir()
+    (tmp_path / "existing_file").write_text("keep")
+    (tmp_path / "run.npz").write_bytes(b"")
+    before = _tree(tmp_path)
+    names = dict(dir=tmp_path / "new", existing_dir=tmp_path / "existing_dir", existing_file=tmp_path / "existing_file",
+                 run=tmp_path / "run.npz")
+    t0 = time.perf_counter()
+    r = rheo(*[a.format(**names) for a in args], timeout=120)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert all(w in r.stderr for w in words), r.stderr
+    assert time.perf_counter() - t0 < 30                  # refused up front, not after the work
+    assert _tree(tmp_path) == before and not (tmp_path / "new").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["existing_dir.npz", "existing_file", "run.npz"]
+
+
+def test_a_missing_simulator_is_refused_before_running(tmp_path):
+    out = tmp_path / "r.npz"
+    env = {**os.environ, "PATH": str(tmp_path)}           # no iverilog anywhere
+    r = subprocess.run([sys.executable, "-m", "sim.cli", "simulate", "creep-1d", "--backend", "icarus", "--out",
+                        str(out)], capture_output=True, text=True, cwd=ROOT, env=env, timeout=120)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "iverilog" in r.stderr.lower(), r.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_verilog_replaces_its_directory_whole(tmp_path):
+    d = tmp_path / "v"
+    assert rheo("verilog", "creep-1d", "--out", d).returncode == 0
+    (d / "mine.txt").write_text("kept")
+    old = _tree(d)
+    r = rheo("verilog", "creep-1d", "--preset", "narrow", "--out", d)
+    assert r.returncode == 0, r.stderr
+    new = _tree(d)
+    assert new["mine.txt"] == b"kept" and new["manifest.json"] != old["manifest.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v"]
+
+
+@pytest.mark.slow
+def test_sigterm_during_the_main_job_leaves_the_old_output_directory_byte_identical(tmp_path):
+    d = tmp_path / "out"
+    d.mkdir()
+    (d / "old.txt").write_text("an earlier output")
+    before = _tree(d)
+    p = subprocess.Popen([sys.executable, "-m", "sim.cli", "run", "--no-synth", "--out", str(d)], cwd=ROOT,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(15)                                        # inside the golden run or its pictures
+    assert p.poll() is None, p.communicate()
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130 and "Traceback" not in err, err
+    assert _tree(d) == before
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["out"]
+
+
+# ---------------------------------------------------------------- 5. no noise
+
+@pytest.mark.parametrize("args", [
+    ["stability", "{scene}"],
+    ["simulate", "{scene}", "--steps", "20", "--out", "{out}"],
+    ["simulate", "{scene}", "--backend", "fixed", "--steps", "20", "--out", "{out}"],
+])
+def test_no_numpy_warnings_on_extreme_but_valid_materials(tmp_path, args):
+    """A node of 1e-300 kg or an element of k1 = 1e300: one clean line (the dt is far above the limit),
+    before it no RuntimeWarning (the closed form's beta^2 overflowed); an all-pinned object under the
+    bit-true model: no traceback (its formats are too wide: FormatError)."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_bad_input import base_scene, dumps
+    for name, change in (("light", {"node_mass": 1e-300}), ("stiff", {"k1": 1e300}), ("pinned", None)):
+        d = base_scene()
+        if change:
+            d["objects"][0]["material"].update(change)
+        else:
+            d["objects"][0]["pinned"] = "all"
+        scene = tmp_path / f"{name}.toml"
+        scene.write_text(dumps(d))
+        r = rheo(*[a.format(scene=scene, out=tmp_path / "r.npz") for a in args])
+        assert "Warning" not in r.stderr and "Traceback" not in r.stderr, r.stderr
+        assert r.returncode in (0, 2) and r.stderr.count("\n") <= 1, r.stderr
+
+
+@pytest.mark.slow
+def test_no_numpy_warnings_building_a_full_featured_3d_core(tmp_path):
+    r = rheo("verilog", "press-3d-rheological", "--full", "--out", tmp_path / "v", timeout=1200)
+    assert r.returncode == 0 and "Warning" not in r.stderr, r.stderr
