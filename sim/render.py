@@ -240,7 +240,7 @@ class _Painter:
 def _suffix_of(out_path) -> str:
     suffix = Path(out_path).suffix.lower()
     if suffix not in (".png", ".gif"):
-        raise BadArgument(f"unsupported output format '{Path(out_path).suffix}' ({out_path}): use .png or .gif")
+        raise BadArgument(f"unsupported output format '{Path(out_path).suffix}': use .png or .gif")
     return suffix
 
 

@@ -283,7 +283,7 @@ def test_arguments_are_checked_before_any_work_and_nothing_is_left_behind(tmp_pa
     r = rheo(*[a.format(**names) for a in args], timeout=120)
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert all(w in r.stderr for w in words), r.stderr
-    assert time.perf_counter() - t0 < 30                  # refused up front, not after the work
+    assert r.stdout == "" and time.perf_counter() - t0 < 30      # refused up front: no stage has begun
     assert _tree(tmp_path) == before and not (tmp_path / "new").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["existing_dir.npz", "existing_file", "run.npz"]
 
