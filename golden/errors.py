@@ -13,3 +13,22 @@ class RheoError(Exception):
 class SimulationDiverged(RheoError, RuntimeError):
     """The run blew up (non-finite state, exploding energy, runaway saturations); the message says when
     and where."""
+
+
+class BadArgument(RheoError, ValueError):
+    """An argument that names nothing known (a preset, backend, simulator, device, output format) or is out
+    of its range; the message names it and what is allowed."""
+
+
+class StabilityError(RheoError, RuntimeError):
+    """A stability measurement that cannot be made (its reference run is unstable, no bracket found)."""
+
+
+class OutputError(RheoError, OSError):
+    """An output that cannot be written where the user asked (not writable, a directory where a file is
+    wanted or the reverse, a full disk); the message names the path."""
+
+
+class SimulatorFailed(RheoError, RuntimeError):
+    """An HDL simulator that is present but failed to build or run the core; the message names the
+    simulator, its log and the log's last error line."""

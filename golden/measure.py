@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from .errors import SimulationDiverged
+from .errors import SimulationDiverged, StabilityError
 from .model import Golden
 from .stability import predict
 from .system import State, System
@@ -104,7 +104,7 @@ def reference(system: System, dt: float, t_end: float, check_every: int = 25, se
 
     why, _ = _run(system, dt, n, record, check_every, seed, perturb, model)
     if why is not None:
-        raise RuntimeError(f"scene '{system.name}': the reference run at dt = {dt:.4g} s is unstable ({why})")
+        raise StabilityError(f"scene '{system.name}': the reference run at dt = {dt:.4g} s is unstable ({why})")
     return Reference(np.array(ts), np.array(Es), dt, max(0.02 * t_end, 4 * check_every * dt))
 
 
@@ -193,13 +193,13 @@ def measure(system: System, lo: float | None = None, hi: float | None = None, re
             while run(hi):
                 lo, hi = hi, 2.0 * hi
                 if hi > 1e6 * start:
-                    raise RuntimeError(f"scene '{system.name}': no instability found up to dt = {hi:g} s")
+                    raise StabilityError(f"scene '{system.name}': no instability found up to dt = {hi:g} s")
         else:
             hi, lo = start, 0.5 * start
             while not run(lo):
                 hi, lo = lo, 0.5 * lo
                 if lo < 1e-6 * start:
-                    raise RuntimeError(f"scene '{system.name}': unstable down to dt = {lo:g} s")
+                    raise StabilityError(f"scene '{system.name}': unstable down to dt = {lo:g} s")
     else:
         if lo is None:
             lo = 0.5 * hi

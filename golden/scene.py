@@ -243,17 +243,35 @@ def _mesh(chk: _Tables, tbl, where, dim, base_dir) -> meshlib.Mesh:
             return meshlib.from_file(str(p), dim, chk.number(tbl, "scale", where, default=1.0, lo=0, lo_open=True))
         except meshlib.MeshError as exc:
             chk.fail(where, str(exc))
-    # explicit
-    try:
-        nodes = np.array(tbl["nodes"], float)
-        cells = np.array(tbl.get("cells", []), np.int64).reshape(-1, dim + 1)
-        edges = (np.array(tbl["edges"], np.int64).reshape(-1, 2) if "edges" in tbl
-                 else meshlib.edges_of_cells(cells))
-    except (ValueError, TypeError):
-        chk.fail(where, f"'nodes' must be rows of {dim} numbers, 'edges' rows of 2 and 'cells' rows of {dim + 1} integers")
-    if nodes.ndim != 2 or nodes.shape[1] != dim:
+    # explicit: every index an integer (1.9 is refused, not truncated), every coordinate a number
+    nodes = np.array(_rows(chk, tbl["nodes"], where, "nodes", dim, (int, float), "numbers"), float).reshape(-1, dim)
+    cells = np.array(_rows(chk, tbl.get("cells", []), where, "cells", dim + 1, int, "node indices"),
+                     np.int64).reshape(-1, dim + 1)
+    edges = (np.array(_rows(chk, tbl["edges"], where, "edges", 2, int, "node indices"), np.int64).reshape(-1, 2)
+             if "edges" in tbl else meshlib.edges_of_cells(cells))
+    if len(nodes) == 0:
         chk.fail(where, f"'nodes' must be rows of {dim} numbers")
     return meshlib.Mesh(nodes, edges, cells)
+
+
+def _rows(chk: _Tables, val, where, key, width, types, what) -> list:
+    """`val` as a flat list: a list of rows of `width` entries (or one flat list of them), each entry of
+    `types` (never a bool): indices must be integers, not numbers that would be truncated."""
+    if not isinstance(val, list):
+        chk.fail(where, f"'{key}' must be a list of rows of {width} {what}, got {val!r}")
+    flat = []
+    for r, row in enumerate(val):
+        entries = row if isinstance(row, list) else [row]
+        if isinstance(row, list) and len(row) != width:
+            chk.fail(where, f"'{key}' must be rows of {width} {what}: row {r} is {row!r}")
+        for v in entries:
+            if isinstance(v, bool) or not isinstance(v, types):
+                chk.fail(where, f"'{key}' row {r}: {v!r} is not {'an integer' if types is int else 'a number'} "
+                                f"({key} are rows of {width} {what})")
+        flat += entries
+    if len(flat) % width:
+        chk.fail(where, f"'{key}' must be rows of {width} {what}, got {len(flat)} entries")
+    return flat
 
 
 def _material(chk: _Tables, tbl, where) -> dict:

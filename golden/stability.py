@@ -89,11 +89,17 @@ def voigt_limit(k, c, m):
         return np.where(den > 0, 4.0 * m / np.where(den > 0, den, 1.0), np.inf)
 
 
-def _first_root(beta, disc):
-    """4 / (beta + sqrt(disc)) where disc >= 0, else inf (no crossing)."""
-    ok = disc >= 0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = 4.0 / (beta + np.sqrt(np.where(ok, disc, 0.0)))
+def _first_root(beta, c):
+    """4 / (beta + sqrt(beta^2 + c)) where beta^2 + c >= 0, else inf (no crossing). Computed on beta and c
+    scaled by s = max(|beta|, sqrt|c|), so that the coefficients of a stiff element or a light node (beta
+    of 1e160 and more) do not overflow beta^2 into inf, which would read as "no bound"."""
+    beta, c = np.broadcast_arrays(np.asarray(beta, float), np.asarray(c, float))
+    s = np.maximum(np.abs(beta), np.sqrt(np.abs(c)))
+    with np.errstate(divide="ignore", invalid="ignore"):     # s = 0 (no element): nan, taken as no crossing
+        b, cs = beta / s, c / s / s
+        disc = b * b + cs
+        ok = disc >= 0
+        r = 4.0 / (s * (b + np.sqrt(np.where(ok, disc, 0.0))))
     return np.where(ok & (r > 0), r, np.inf)
 
 
@@ -114,10 +120,10 @@ def three_element_limit(m, k1, c1, c2, a=1.0, cp=0.0):
     beta = kap + cv / m
     P = (cv * kap + cs * c2 / G) / m
     Q = a * cs / m
-    h1 = _first_root(beta, beta * beta + 4.0 * (2.0 * Q - P))
+    h1 = _first_root(beta, 4.0 * (2.0 * Q - P))
     with np.errstate(divide="ignore", invalid="ignore"):
         h2 = np.where(P - Q > 0, beta / np.where(P - Q > 0, P - Q, 1.0), np.inf)
-    h3 = _first_root(beta, beta * beta - 8.0 * (P - Q))
+    h3 = _first_root(beta, -8.0 * (P - Q))
     return np.minimum(np.minimum(h1, h2), h3)
 
 

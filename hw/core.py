@@ -44,6 +44,7 @@ from amaranth.lib import wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
+from golden.errors import BadArgument
 from .datapath import Params, _node_flags, collision_kernel, element_kernel, node_kernel, pair_kernel
 from .hostmap import ADDR_BITS, ELEM_BASE, ID_WORD, NODE_BASE, HostMap, Reg
 from .pipeline import PipeArith
@@ -74,7 +75,7 @@ class CoreConfig:
     def __post_init__(self):
         for name, v in (("lanes", self.lanes), ("node_lanes", self.node_lanes)):
             if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 64:
-                raise ValueError(f"{name} must be an integer in 1..64, got {v!r}")
+                raise BadArgument(f"{name} must be an integer in 1..64, got {v!r}")
 
     @classmethod
     def of(cls, bt, lanes=1, node_lanes=1) -> "CoreConfig":

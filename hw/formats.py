@@ -17,8 +17,7 @@ import re
 from dataclasses import dataclass, field
 from enum import StrEnum
 
-from golden.errors import RheoError
-from .fixed import SQ, Shape
+from .fixed import SQ, FormatError, Shape
 
 # quantity -> (word class, what it is)
 QUANTITIES = {
@@ -117,7 +116,7 @@ _SHAPE_RE = re.compile(r"^\s*(SQ|UQ)\s*\(\s*(-?\d+)\s*,\s*(-?\d+)\s*\)\s*$")
 def parse_shape(text: str) -> Shape:
     m = _SHAPE_RE.match(str(text))
     if not m:
-        raise ValueError(f"format must look like SQ(i, f) or UQ(i, f), got {text!r}")
+        raise FormatError(f"format must look like SQ(i, f) or UQ(i, f), got {text!r}")
     from .fixed import UQ
     return (SQ if m.group(1) == "SQ" else UQ)(int(m.group(2)), int(m.group(3)))
 
@@ -128,8 +127,6 @@ STAGNATION_STATES = {"x": "v dt (the displacement of a step)", "u": "F dt / m (t
                      "a": "adot dt (the change of a of a step)"}
 
 
-class FormatError(RheoError, ValueError):
-    """Number formats under which the scene cannot run right (a constant or the initial state does not fit)."""
 
 
 @dataclass

@@ -23,8 +23,8 @@ trial_fixed(system, dt, ref, steps=, max_steps=, check_every=, seed=, perturb=, 
        (BitTrue.frame) gets golden.watchdog.DivergenceTest (non-finite, a node out of the box, mechanical
        energy above GROWTH x the work bound) and the comparison with a reference run (energy above LOCAL
        x the reference's local peak + FLOOR x its peak, Reference.allowed), here `bit_ref`; and its
-       saturations must not run away (hw.bittrue.check_saturations: more than 1 % of the node and
-       element updates of the check interval; it raises SimulationDiverged). Formats the preset cannot
+       saturations must not run away (hw.bittrue.RunawayWatch, judged on every step over fixed windows of
+       256 steps; it raises SimulationDiverged). Formats the preset cannot
        derive at dt from that stable float run (NoFormats: what `rheo simulate --backend fixed` would
        refuse at this dt) count as unstable too, reason given.
 
@@ -50,7 +50,7 @@ import dataclasses
 
 import numpy as np
 
-from golden.errors import RheoError
+from golden.errors import BadArgument, RheoError, StabilityError
 from golden.system import System
 from golden.measure import MAX_STEPS, PERTURB, Reference, measure, reference, trial
 from .bittrue import BitTrue, FloatDatapath
@@ -93,7 +93,7 @@ def bittrue_model(preset: str):
 
 def _check(value: str, known, what: str) -> None:
     if value not in known:
-        raise ValueError(f"unknown {what} '{value}' (known: {', '.join(known)})")
+        raise BadArgument(f"unknown {what} '{value}' (known: {', '.join(known)})")
 
 
 def trial_fixed(system: System, dt: float, ref: Reference | None = None, steps: int | None = None,
@@ -124,7 +124,7 @@ def bittrue_reference(system: System, ref: Reference, preset: str, check_every: 
     try:
         return reference(system, ref.dt, float(ref.t[-1]), check_every, seed, perturb, model=bittrue_model(preset))
     except RuntimeError as exc:                  # unstable, or NoFormats: no yardstick, no measurement
-        raise RuntimeError(f"scene '{system.name}': bit-true ({preset}) reference run: {exc}") from None
+        raise StabilityError(f"scene '{system.name}': bit-true ({preset}) reference run: {exc}") from None
 
 
 def measure_fixed(system: System, preset: str = "wide", yardstick: str = "bit-true", **kw) -> dict:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from golden.errors import BadArgument
 from golden.model import simulate
 from golden.system import Run, System
 
@@ -31,7 +32,7 @@ def run_backend(system: System, backend: str, steps=None, every=None, progress=F
     """Run `system` on `backend` (BACKENDS); `bittrue`: the bit-true model to use (formats) for a
     fixed-point backend, else one is built for the preset."""
     if backend not in BACKENDS:
-        raise ValueError(f"unknown backend '{backend}' (known: {', '.join(BACKENDS)})")
+        raise BadArgument(f"unknown backend '{backend}' (known: {', '.join(BACKENDS)})")
     with np.errstate(over="ignore", invalid="ignore"):
         if backend == "golden":
             return simulate(system, steps=steps, every=every, progress=progress)

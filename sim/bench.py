@@ -22,6 +22,7 @@ import time
 
 import numpy as np
 
+from golden.errors import BadArgument
 from golden import mesh as meshlib
 from golden.model import Golden
 from golden.system import State, System
@@ -206,7 +207,7 @@ def run(backend: str, sizes=SIZES, min_seconds: float = 1.0, scene: System | Non
             return [bench_fpga(scene, min_seconds=min_seconds, **fpga)]
         if backend == "cpu":
             return [dict(backend="cpu", scene=scene.name, **compare_cpu(scene, min_seconds))]
-        raise ValueError(f"backend '{backend}' benchmarks generated meshes only (no scene)")
+        raise BadArgument(f"backend '{backend}' benchmarks generated meshes only (no scene)")
     if backend == "golden":
         return [bench_golden(n, min_seconds) for n in sizes]
     if backend == "cpu":
@@ -224,4 +225,4 @@ def run(backend: str, sizes=SIZES, min_seconds: float = 1.0, scene: System | Non
             f["ratio_to_golden"] = f["steps_per_s"] / g["steps_per_s"]
             rows.append(f)
         return rows
-    raise ValueError(f"backend '{backend}' has no benchmark (available: golden, cpu, fixed, fpga)")
+    raise BadArgument(f"backend '{backend}' has no benchmark (available: golden, cpu, fixed, fpga)")

@@ -16,11 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
+from golden.errors import BadArgument
 from golden.model import FrameRecorder
 from golden.system import Run, System, frame_steps
 from golden.scene import file_stem
 from hw import emit
-from hw.bittrue import BitTrue
+from hw.bittrue import RUNAWAY_WINDOW, BitTrue, RunawayWatch
 from hw.datapath import HwState
 from .host import HostDriver
 from .hwsim import HardwareStepper
@@ -52,7 +53,7 @@ def run_job(simulator: str, core_dir: Path, drv: HostDriver, load_words, frames,
     `progress(done, total)` hears the simulated cycles while the simulation runs (polled twice a second)."""
     from .simulators import run_cocotb
     if simulator not in SIMULATORS:
-        raise ValueError(f"unknown simulator '{simulator}' (known: {', '.join(SIMULATORS)})")
+        raise BadArgument(f"unknown simulator '{simulator}' (known: {', '.join(SIMULATORS)})")
     with tempfile.TemporaryDirectory(prefix="rheo-job-") as tmp:
         job = Path(tmp) / "job.npz"
         result = Path(tmp) / "result.npz"
@@ -106,16 +107,20 @@ def simulate_hdl(system: System, simulator: str, preset="wide", steps=None, ever
     n_steps = system.n_steps if steps is None else int(steps)
     at = frame_steps(n_steps, max(1, system.every if every is None else int(every)))
     st = bt.initial_state()
-    runs = [int(n) for n in np.diff(at)]
+    ends = sorted(set(int(k) for k in at[1:]) | set(range(RunawayWatch.window_end(0), int(at[-1]), RUNAWAY_WINDOW)))
+    runs = [int(n) for n in np.diff([0] + ends)]      # read back at every frame and every runaway window's end
     out = run_job(simulator, core_dir, drv, drv.load_words(st.X, st.U, st.A, 0), runs)
     hw = HardwareStepper(bt, hw=None)                # converts and records the read-backs
     frames = FrameRecorder(system, hw, len(at))
     frames.add(st)
+    wanted = set(int(k) for k in at[1:])
     for n, (X, U, A, step, sat, _), cycles in zip(runs, out["frames"], out["cycles"]):
         st = HwState(X, U, A, step)
+        hw.runaway.add(step, sat - hw.sat, steps=n)
         hw.sat = sat
         hw.cycles.append((n, cycles))
-        frames.add(st)
+        if step in wanted:
+            frames.add(st)
     run = frames.run(at * system.dt, out["wall_s"])
     run.info["cycles_per_step"] = np.int64(man["cycles_per_step"]["value"])
     return run

@@ -14,7 +14,7 @@ from amaranth.sim import Simulator
 
 from golden.model import Stepper, simulate
 from golden.system import Run, System
-from hw.bittrue import BitTrue, check_saturations
+from hw.bittrue import BitTrue, RunawayWatch
 from hw.core import Core, CoreConfig
 from .host import HostDriver
 
@@ -107,22 +107,29 @@ class HardwareStepper(Stepper):
         self.system, self.bt, self.hw = bt.system, bt, hw
         self.cycles = []                  # (steps, cycles) of every run
         self.sat = 0                      # the hardware's saturation count at the last read-back
-        self._recorded = (0, 0)
+        self.runaway = RunawayWatch(bt.system, bt.preset)
 
     def initial_state(self):
         st = self.bt.initial_state()
-        self.hw.call("load", st.X, st.U, st.A, 0)
+        self.hw.call("load", st.X, st.U, st.A, 0)      # clears the core's saturation count
+        self.sat = 0
+        self.runaway.start(0)
         return st
 
     def advance(self, st, n, progress=None):
-        self.cycles.append((n, self.hw.call("run", n)))
-        X, U, A, step, self.sat, _ = self.hw.call("read_state")
-        st.X, st.U, st.A = X, U, A
-        st.step += n
-        if step != st.step:
-            raise RuntimeError(f"the core's step counter reads {step}, expected {st.step}")
-        if progress is not None:
-            progress(n)
+        end = st.step + n
+        while st.step < end:         # runs never cross a window of the runaway test (RunawayWatch)
+            k = min(end, RunawayWatch.window_end(st.step)) - st.step
+            self.cycles.append((k, self.hw.call("run", k)))
+            last = self.sat
+            X, U, A, step, self.sat, _ = self.hw.call("read_state")
+            st.X, st.U, st.A = X, U, A
+            st.step += k
+            if step != st.step:
+                raise RuntimeError(f"the core's step counter reads {step}, expected {st.step}")
+            self.runaway.add(st.step, self.sat - last, steps=k)
+            if progress is not None:
+                progress(k)
 
     def step(self, st):
         self.advance(st, 1)
@@ -131,9 +138,6 @@ class HardwareStepper(Stepper):
         return self.bt.frame(st)
 
     def record(self, st) -> dict:
-        last_step, last_sat = self._recorded
-        check_saturations(self.bt, st.step - last_step, self.sat - last_sat, self.bt.preset)
-        self._recorded = (st.step, self.sat)
         x, u, a = self.bt.raw(st)
         return {"x_raw": x, "v_raw": u, "a_raw": a, "saturations": self.sat}
 

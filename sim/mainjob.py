@@ -76,7 +76,18 @@ class _Background:
 
 def main_job(system: System, out, preset: str = "wide", hdl_steps: int = 200, synth: bool = True,
              place_and_route: bool = False, simulator: str | None = None, log=print) -> dict:
-    """Run the whole job on `system` into directory `out`; returns the summary (also out/summary.json)."""
+    """Run the whole job on `system` into directory `out`; returns the summary (also out/summary.json).
+    `out` is written whole or not at all (sim.runfile.output_directory): the job writes into a temporary
+    sibling that becomes `out` when every stage has passed."""
+    from sim.runfile import output_directory
+    final = Path(out)
+    with output_directory(final) as tmp:
+        def shown(p) -> Path:                 # the path a file will have once the job is done
+            return final / Path(p).relative_to(tmp)
+        return _job(system, tmp, shown, preset, hdl_steps, synth, place_and_route, simulator, log)
+
+
+def _job(system, out: Path, shown, preset, hdl_steps, synth, place_and_route, simulator, log) -> dict:
     from golden.scene import file_stem
     from hw import emit
     from hw.bittrue import BitTrue, scene_ranges
@@ -88,8 +99,6 @@ def main_job(system: System, out, preset: str = "wide", hdl_steps: int = 200, sy
     from sim.synth import synthesize_cached
     from sim.vtk_export import export_vtk
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     t_job = time.perf_counter()
     n = 5 if synth else 4
     stem = file_stem(system.name)      # no output path from inside the scene file
@@ -111,7 +120,8 @@ def main_job(system: System, out, preset: str = "wide", hdl_steps: int = 200, sy
                              ["before", f"loaded (t = {run.t[peak]:.2f} s)", f"after release (t = {run.t[-1]:.2f} s)"])
     gif = render(npz, out / f"{stem}.gif")
     files = export_vtk(npz, out / "vtk")
-    log(f"      {npz}\n      {png}\n      {ba}\n      {gif}\n      {len(files)} frames -> {out / 'vtk' / 'run.pvd'}")
+    log(f"      {shown(npz)}\n      {shown(png)}\n      {shown(ba)}\n      {shown(gif)}\n      {len(files)} frames -> "
+        f"{shown(out / 'vtk' / 'run.pvd')}")
     seconds["golden_and_pictures"] = time.perf_counter() - t
     summary["golden_wall_s"] = run.wall_seconds
 
@@ -124,7 +134,7 @@ def main_job(system: System, out, preset: str = "wide", hdl_steps: int = 200, sy
         log(f"warning: {msg}")
     man = emit.write(bt, out / "verilog")
     cps = man["cycles_per_step"]["value"]
-    log(f"      {out / 'verilog' / man['verilog']}: {cps} cycles per step, "
+    log(f"      {shown(out / 'verilog' / man['verilog'])}: {cps} cycles per step, "
         f"left out: {', '.join(u['unit'] for u in man['units_left_out']) or 'nothing'}")
     summary["core"] = {"preset": preset, "cycles_per_step": cps,
                        "units_left_out": [u["unit"] for u in man["units_left_out"]]}
@@ -190,14 +200,14 @@ def main_job(system: System, out, preset: str = "wide", hdl_steps: int = 200, sy
             shutil.copyfile(cache / name, out / "synth" / name)
         fmax = f", Fmax {r['fmax_mhz']:.1f} MHz" if r.get("fmax_mhz") else ""
         log(f"      {r['luts']} LUTs, {r['flip_flops']} FFs, {r['mult18x18']} multipliers, {r['block_rams']} "
-            f"block RAMs{fmax} -> {out / 'synth' / 'report.md'} (cached in {cache})")
+            f"block RAMs{fmax} -> {shown(out / 'synth' / 'report.md')} (cached in {cache})")
         summary["synthesis"] = {k: r.get(k) for k in ("luts", "flip_flops", "mult18x18", "block_rams", "fmax_mhz")}
         seconds["synthesis_wait"] = time.perf_counter() - t
 
     summary["wall_s"] = time.perf_counter() - t_job
     runfile.write_atomically(out / "summary.json",
                              lambda tmp: Path(tmp).write_text(json.dumps(summary, indent=2, default=float)))
-    log(f"done in {summary['wall_s']:.0f} s: {out}/ holds the runs, pictures, vtk/, verilog/, report/"
+    log(f"done in {summary['wall_s']:.0f} s: {shown(out)}/ holds the runs, pictures, vtk/, verilog/, report/"
         + (", synth/" if synth else "") + ", summary.json")
     err = summary["report"].get(preset)
     log(f"  golden: {system.n_steps} steps in {summary['golden_wall_s']:.1f} s; bit-true {preset}: "

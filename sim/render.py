@@ -27,6 +27,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection  # noqa: E402
 from PIL import Image  # noqa: E402  (a matplotlib dependency)
 
+from golden.errors import BadArgument  # noqa: E402
 from .runfile import load_run  # noqa: E402
 
 DEFAULT_PANELS = 4
@@ -51,20 +52,20 @@ def select_frames(frames, F: int, default_count: int) -> list[int]:
         raise ValueError(f"frames must be a count or a list of frame indices, got {frames!r}")
     if isinstance(frames, (int, np.integer)):
         if frames < 1:
-            raise ValueError(f"frame count must be at least 1, got {frames}")
+            raise BadArgument(f"frame count must be at least 1, got {frames}")
         return _spread(int(frames), F)
     try:
         items = list(frames)
     except TypeError:
-        raise ValueError(f"frames must be a count or a list of frame indices, got {frames!r}") from None
+        raise BadArgument(f"frames must be a count or a list of frame indices, got {frames!r}") from None
     if not items:
-        raise ValueError("no frames selected")
+        raise BadArgument("no frames selected")
     out = []
     for i in items:
         if isinstance(i, (bool, np.bool_)) or not isinstance(i, (int, np.integer)):
-            raise ValueError(f"frame index must be an integer, got {i!r}")
+            raise BadArgument(f"frame index must be an integer, got {i!r}")
         if not -F <= i < F:
-            raise ValueError(f"frame index {int(i)} out of range: the run has {F} frames (0..{F - 1})")
+            raise BadArgument(f"frame index {int(i)} out of range: the run has {F} frames (0..{F - 1})")
         out.append(int(i) % F)
     return out
 
@@ -76,7 +77,7 @@ def _limits(run: dict, idx) -> tuple[np.ndarray, np.ndarray]:
     pts = run["x"][idx].reshape(-1, D)
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     if len(pts) == 0:
-        raise ValueError("the selected frames have no finite node coordinates")
+        raise BadArgument("the selected frames have no finite node coordinates")
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     fh = run["floor_height"]
     if np.isfinite(fh):
@@ -239,7 +240,7 @@ class _Painter:
 def _suffix_of(out_path) -> str:
     suffix = Path(out_path).suffix.lower()
     if suffix not in (".png", ".gif"):
-        raise ValueError(f"unsupported output format '{Path(out_path).suffix}': use .png or .gif")
+        raise BadArgument(f"unsupported output format '{Path(out_path).suffix}': use .png or .gif")
     return suffix
 
 
@@ -361,12 +362,12 @@ def render_before_after(npz_path, out_path, frame_indices, labels, dpi=100) -> P
     "pressed", "after release"). Frame indices may be negative (counting from the end)."""
     out_path = Path(out_path)
     if _suffix_of(out_path) != ".png":
-        raise ValueError(f"unsupported output format '{out_path.suffix}' for a before/after picture: use .png")
+        raise BadArgument(f"unsupported output format '{out_path.suffix}' for a before/after picture: use .png")
     labels = [str(s) for s in labels]
     run = load_run(npz_path)
     if isinstance(frame_indices, (int, np.integer)):
         frame_indices = [frame_indices]
     idx = select_frames(frame_indices, len(run["t"]), DEFAULT_PANELS)
     if len(labels) != len(idx):
-        raise ValueError(f"{len(idx)} frame(s) but {len(labels)} label(s)")
+        raise BadArgument(f"{len(idx)} frame(s) but {len(labels)} label(s)")
     return _panels_png(run, out_path, idx, labels, dpi, "")

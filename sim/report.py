@@ -50,8 +50,8 @@ def build(system: System, out_dir, presets=("narrow", "medium", "wide"), max_ref
     from hw.core import CoreConfig, schedule
     from hw.datapath import NotSupported
     from hw.sensitivity import rounded_golden
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    from .runfile import check_output_dir, output_directory
+    final = check_output_dir(out_dir)              # before the minutes of runs, not after
     size = float(np.ptp(system.x0, axis=0).max())
     every = 4 * max(1, -(-system.n_steps // (4 * FRAMES)))     # a multiple of 4: frames shared by all dts
     n = (system.n_steps // every) * every
@@ -126,14 +126,15 @@ def build(system: System, out_dir, presets=("narrow", "medium", "wide"), max_ref
         summary["cpu"]["discretisation"][label] = {"max_relative": float(_errors(fast.x, ref.x, size)[2].max()),
                                                    "run_time_per_simulated_second": fast.wall_seconds / T}
 
-    with open(out / "error.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        keys = list(cols)
-        w.writerow(keys)
-        for row in zip(*(cols[k] for k in keys)):
-            w.writerow([f"{v:.9g}" for v in row])
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    _plots(out, cols, summary)
+    with output_directory(final) as out:            # whole or not at all
+        with open(out / "error.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            keys = list(cols)
+            w.writerow(keys)
+            for row in zip(*(cols[k] for k in keys)):
+                w.writerow([f"{v:.9g}" for v in row])
+        (out / "summary.json").write_text(json.dumps(summary, indent=2))
+        _plots(out, cols, summary)
     return summary
 
 

@@ -8,7 +8,12 @@ simulated cores also cycles ((runs, 2): steps and cycles of each run) and cycles
 """
 from __future__ import annotations
 
+import contextlib
+import errno
+import json
 import os
+import shutil
+import signal
 import tempfile
 import zipfile
 import zlib
@@ -16,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from golden.errors import RheoError
+from golden.errors import BadArgument, OutputError, RheoError
 from golden.system import Run, System
 
 DRAWING_KEYS = ("t", "x", "edges", "cells", "node_object", "pinned")     # what a picture needs
@@ -47,26 +52,164 @@ def save(path, arrays: dict) -> Path:
     """Write atomically: a failed write never leaves a half file in place of a good one."""
     path = Path(path)
     if path.suffix != ".npz":
-        raise ValueError(f"output file must end in .npz, got '{path.name}'")
+        raise BadArgument(f"output file must end in .npz, got '{path.name}'")
     return write_atomically(path, lambda tmp: np.savez_compressed(tmp, **arrays))
 
 
 def write_atomically(path, write) -> Path:
     """Call write(tmp) on a hidden temporary file beside `path`, give it the mode a plain open() would
     (mkstemp's is 0600), then rename it into place: a failed or interrupted write (SIGINT, SIGTERM: the CLI
-    turns both into KeyboardInterrupt) leaves the old file byte-identical and no temporary behind."""
+    turns both into KeyboardInterrupt) leaves the old file byte-identical and no temporary behind. A file
+    system problem (not writable, a directory in the way, a full disk) is an OutputError naming `path`."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=path.suffix, prefix=f".{path.stem}.", dir=path.parent)
-    os.close(fd)
+    check_output_file(path)
+    tmp = None
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(suffix=path.suffix, prefix=f".{path.stem}.", dir=path.parent)
+        os.close(fd)
         write(tmp)
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
+    except OSError as exc:
+        raise _output_error(path, exc) from None
     finally:
-        if os.path.exists(tmp):
+        if tmp is not None and os.path.exists(tmp):
             os.unlink(tmp)
     return path
+
+
+# ----------------------------------------------------------------------------------------------------
+# Outputs: checked before any work starts; a directory output is whole or not there (issue 13)
+# ----------------------------------------------------------------------------------------------------
+
+_FILE_SYSTEM_ERRNOS = {errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EISDIR,
+                       errno.ENOTDIR, errno.ENOENT, errno.ENAMETOOLONG, errno.EEXIST, errno.EXDEV}
+MARKER = ".rheo-output"          # in every output directory: the files rheo wrote there (JSON list)
+
+
+def _output_error(path, exc: OSError) -> Exception:
+    if exc.errno not in _FILE_SYSTEM_ERRNOS:
+        return exc                                   # not the user's file system problem: a bug, re-raised
+    return OutputError(f"cannot write {path}: {exc.strerror or exc}")
+
+
+def _check_parent(path: Path, what: str) -> None:
+    """The nearest existing ancestor of `path` is a directory rheo may write into."""
+    parent = path.parent
+    while not parent.exists() and not parent.is_symlink() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise OutputError(f"{what} {path}: {parent} is not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise OutputError(f"{what} {path}: {parent} is not writable")
+
+
+def check_output_file(path, suffixes: tuple[str, ...] = ()) -> Path:
+    """Refuse, before any work, a file output that cannot be written: an existing directory, a parent that is
+    a file or not writable, a suffix not in `suffixes`."""
+    path = Path(path)
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise BadArgument(f"output file {path} must end in {' or '.join(suffixes)}")
+    if path.is_dir():
+        raise OutputError(f"output file {path} is an existing directory")
+    _check_parent(path, "output file")
+    return path
+
+
+def check_output_dir(path) -> Path:
+    """Refuse, before any work, a directory output that cannot be written: an existing file, a parent that is
+    a file or not writable."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OutputError(f"output directory {path} is an existing file")
+    _check_parent(path, "output directory")
+    return path
+
+
+@contextlib.contextmanager
+def output_directory(path):
+    """Yield a fresh temporary directory beside `path` to write a multi-file output into; when the block ends
+    without error, move it into place as `path` in one rename. A failed or interrupted block leaves `path`
+    as it was (byte for byte) and nothing new behind.
+
+    An existing `path` is replaced only then, whole, except for the files a user put there: what rheo wrote
+    before (listed in its MARKER file) goes, every other file is carried over into the new directory unless
+    the new output has a file of the same name (hard links: no copy, no time)."""
+    path = check_output_dir(path)
+    tmp = None
+    try:
+        with _as_output_error(path):
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
+            os.chmod(tmp, 0o777 & ~_umask())
+        yield tmp
+        with _as_output_error(path):
+            written = sorted(str(f.relative_to(tmp)) for f in tmp.rglob("*")
+                             if not f.is_dir() and f.name != MARKER)
+            (tmp / MARKER).write_text(json.dumps(written, indent=0) + "\n")
+            if path.exists():
+                _carry_over(path, tmp)
+            _swap(tmp, path)
+    finally:
+        if tmp is not None and tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def _as_output_error(path):
+    try:
+        yield
+    except OSError as exc:
+        raise _output_error(path, exc) from None
+
+
+def _carry_over(old: Path, new: Path) -> None:
+    """Link into `new` the files of `old` that rheo did not write there (its MARKER lists what it wrote)."""
+    try:
+        ours = set(json.loads((old / MARKER).read_text()))
+    except (OSError, ValueError):
+        ours = set()
+    for f in sorted(old.rglob("*")):
+        rel = f.relative_to(old)
+        if f.name == MARKER or str(rel) in ours or f.is_dir() and not f.is_symlink():
+            continue
+        dst = new / rel
+        if dst.exists() or dst.is_symlink():
+            continue                                  # the new output has a file of that name
+        for up in rel.parents:
+            if (new / up).exists() and not (new / up).is_dir():
+                raise OutputError(f"cannot replace {old}: its file {f} would lie under the new output's file "
+                                  f"{new.name}/{up}; move it away first")
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        if f.is_symlink():
+            os.symlink(os.readlink(f), dst)
+        else:
+            try:
+                os.link(f, dst)
+            except OSError:
+                shutil.copy2(f, dst)
+
+
+def _swap(tmp: Path, path: Path) -> None:
+    """Move `tmp` into place as `path` with SIGINT and SIGTERM held back, so that an interrupt finds either
+    the old directory or the new one."""
+    old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        if path.exists():
+            trash = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
+            os.rename(path, trash / "old")
+            try:
+                os.rename(tmp, path)
+            except OSError:
+                os.rename(trash / "old", path)
+                raise
+            finally:
+                shutil.rmtree(trash, ignore_errors=True)
+        else:
+            os.rename(tmp, path)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
 
 
 def _umask() -> int:

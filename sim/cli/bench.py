@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from .common import (FORMAT_PRESETS, UsageError, check_square_fits, lane_arguments, load_system, positive_float,
+from .common import (FORMAT_PRESETS, UsageError, check_backend_fits, check_square_fits, lane_arguments, load_system, positive_float,
                      positive_int)
 
 NAME, HELP = "bench", "measure steps/s and element-updates/s on generated meshes"
@@ -33,21 +33,27 @@ def run(args) -> int:
     from sim import bench
     if args.backend not in BENCH_BACKENDS:
         raise UsageError(f"backend '{args.backend}' has no benchmark (available: {', '.join(BENCH_BACKENDS)})")
+    if args.backend == "fpga":                      # every argument and tool before any work
+        from sim.simulators import check_simulator
+        from sim.synth import check_device, check_tools
+        check_simulator(args.simulator)
+        check_device(args.device)
+        if args.fmax_mhz is None:
+            check_tools(place_and_route=True)
+    elif any(v is not None for v in (args.preset, args.fmax_mhz)) or args.lanes != 1 or args.node_lanes != 1:
+        raise UsageError("--preset, --lanes, --node-lanes and --fmax-mhz belong to --backend fpga")
+    sizes = args.sizes or ([10_000] if args.backend == "fpga" else list(bench.SIZES))
+    for n in sizes:
+        check_square_fits(n, args.backend)
     scene = load_system(args.scene) if args.scene else None
+    if scene is not None:
+        check_backend_fits(scene, args.backend)
     fpga = {}
     if args.backend == "fpga":
         fpga = dict(preset=args.preset or "narrow", lanes=args.lanes, node_lanes=args.node_lanes,
                     simulator=args.simulator, steps=args.hdl_steps, fmax_mhz=args.fmax_mhz, device=args.device,
                     log=None if args.json else (lambda m: print(f"  {m}", flush=True)))
-    elif any(v is not None for v in (args.preset, args.fmax_mhz)) or args.lanes != 1 or args.node_lanes != 1:
-        raise UsageError("--preset, --lanes, --node-lanes and --fmax-mhz belong to --backend fpga")
-    sizes = args.sizes or ([10_000] if args.backend == "fpga" else list(bench.SIZES))
-    for n in sizes:
-        check_square_fits(n)
-    try:
-        rows = bench.run(args.backend, sizes=sizes, min_seconds=args.seconds, scene=scene, **fpga)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
+    rows = bench.run(args.backend, sizes=sizes, min_seconds=args.seconds, scene=scene, **fpga)
     if args.json:
         print(json.dumps({"backend": args.backend, "results": rows}, indent=2))
     elif args.backend == "fpga":

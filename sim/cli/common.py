@@ -37,14 +37,26 @@ def positive_int(text: str) -> int:
     return val
 
 
+MAX_LANES = 64                                      # hw/core.py CoreConfig
+
+
+def lane_count(text: str) -> int:
+    val = positive_int(text)
+    if val > MAX_LANES:
+        raise argparse.ArgumentTypeError(f"expected a lane count in 1..{MAX_LANES}, got {val}")
+    return val
+
+
 def scene_argument(parser) -> None:
     parser.add_argument("scene", help="built-in scene name, path to a scene .toml, or square:N (the benchmark "
                                       "square of about N elements)")
 
 
 def lane_arguments(parser) -> None:
-    parser.add_argument("--lanes", type=positive_int, default=1, help="hardware: element (and pair) lanes P (default 1)")
-    parser.add_argument("--node-lanes", type=positive_int, default=1, help="hardware: node lanes Q (default 1)")
+    parser.add_argument("--lanes", type=lane_count, default=1,
+                        help=f"hardware: element (and pair) lanes P in 1..{MAX_LANES} (default 1)")
+    parser.add_argument("--node-lanes", type=lane_count, default=1,
+                        help=f"hardware: node lanes Q in 1..{MAX_LANES} (default 1)")
 
 
 def load_system(ref: str):
@@ -78,9 +90,17 @@ def check_frames_fit(system, steps, every) -> None:
         raise UsageError(f"{why}: record fewer frames (a larger --every or fewer --steps)")
 
 
-def check_square_fits(n_elements: int) -> None:
+def check_square_fits(n_elements: int, backend: str = "golden") -> None:
     from golden.limits import mesh_nodes_fit
-    if (why := mesh_nodes_fit(n_elements / 3, f"a generated square of {n_elements} elements")) is not None:
+    if (why := mesh_nodes_fit(n_elements / 3, f"a generated square of {n_elements} elements", backend)) is not None:
+        raise UsageError(why)
+
+
+def check_backend_fits(system, backend: str, steps=None) -> None:
+    """The scene on `backend` (the bit-true model and the simulated cores need more than golden, which the
+    scene's loading already checked): refused before anything is built when this machine cannot hold it."""
+    from golden.limits import mesh_nodes_fit
+    if (why := mesh_nodes_fit(system.n_nodes, f"scene '{system.name}'", backend)) is not None:
         raise UsageError(why)
 
 
@@ -98,6 +118,7 @@ def hardware_model(args):
     system = load_system(args.scene)
     if args.full:
         system = emit.full_featured(system)
+    check_backend_fits(system, "amaranth")           # the core is elaborated: before the range analysis
     print(f"{system.name}: range analysis and formats (preset {args.preset})", flush=True)
     with np.errstate(over="ignore", invalid="ignore"):
         bt = BitTrue(system, args.preset)

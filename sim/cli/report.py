@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import FORMAT_PRESETS, UsageError, load_system, positive_float, scene_argument
+from .common import FORMAT_PRESETS, UsageError, check_backend_fits, load_system, positive_float, scene_argument
 
 NAME, HELP = "report", "error against run time: quantisation and discretisation errors"
 
@@ -23,7 +23,10 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from sim import report
+    from sim.runfile import check_output_dir
+    check_output_dir(args.out)                     # before the minutes of runs
     system = load_system(args.scene)
+    check_backend_fits(system, "fixed")
     clock, source = args.clock_mhz, "assumed (--clock-mhz)"
     if args.synth is not None:
         try:

@@ -1,7 +1,7 @@
 """`rheo run`: the main job on one scene (what `make run` does; sim/mainjob.py)."""
 from __future__ import annotations
 
-from .common import FORMAT_PRESETS, load_system, positive_int
+from .common import FORMAT_PRESETS, check_backend_fits, load_system, positive_int
 
 NAME, HELP = "run", "the main job: golden, bit-true, Verilog checked bit for bit, report, synthesis"
 DEFAULT_SCENE = "press-2d-rheological"
@@ -22,10 +22,19 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from sim.mainjob import main_job
+    from sim.mainjob import hdl_simulator, main_job
+    from sim.runfile import check_output_dir
+    from sim.simulators import check_simulator
     from .stability import refuse_if_unstable
+    check_output_dir(args.out)                     # every argument and tool before any work
+    simulator = hdl_simulator(args.simulator)[0]
+    check_simulator(simulator)
+    if args.synth:
+        from sim.synth import check_tools
+        check_tools(args.pnr)
     system = load_system(args.scene)
     refuse_if_unstable(system, force=False)
+    check_backend_fits(system, simulator)
     main_job(system, args.out, preset=args.preset, hdl_steps=args.hdl_steps, synth=args.synth,
              place_and_route=args.pnr, simulator=args.simulator, log=lambda m: print(m, flush=True))
     return 0

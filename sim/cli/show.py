@@ -14,6 +14,8 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from sim.render import render
+    from sim.runfile import check_output_file
+    check_output_file(args.out, (".png", ".gif"))
     out = render(args.run, args.out, frames=args.frames)
     print(f"wrote {out}")
     return 0

@@ -1,7 +1,7 @@
 """`rheo simulate SCENE --backend B --out run.npz`: run a scene on any backend and write its run file."""
 from __future__ import annotations
 
-from .common import (FORMAT_PRESETS, UsageError, check_frames_fit, lane_arguments, load_system, positive_int,
+from .common import (FORMAT_PRESETS, UsageError, check_backend_fits, check_frames_fit, lane_arguments, load_system, positive_int,
                      scene_argument, warn_stagnation)
 
 NAME, HELP = "simulate", "run a scene and write its frames to an NPZ file"
@@ -26,9 +26,14 @@ def run(args) -> int:
     from .stability import refuse_if_unstable
     if not args.out.endswith(".npz"):
         raise UsageError(f"--out must name a .npz file, got '{args.out}'")
+    runfile.check_output_file(args.out)            # every argument before any work
+    if args.backend in ("icarus", "verilator"):
+        from sim.simulators import check_simulator
+        check_simulator(args.backend)
     system = load_system(args.scene)
     refuse_if_unstable(system, args.force)
     check_frames_fit(system, args.steps, args.every)
+    check_backend_fits(system, args.backend, args.steps)
     bt = None
     if args.backend in FIXED_POINT:
         bt = bit_true_model(system, args.preset, args.steps)

@@ -26,9 +26,26 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from hw import emit
-    from sim.synth import synthesize
-    out = Path(args.out)
+    from sim.runfile import check_output_dir, output_directory
+    from sim.synth import check_device, check_tools, synthesize
+    out = check_output_dir(args.out)              # every argument before the range analysis and the tools
+    check_device(args.device)
+    check_tools(args.pnr)
     bt = hardware_model(args)
+    with output_directory(out) as tmp:             # whole or not at all
+        r, man = _synthesize(args, bt, tmp, emit, synthesize)
+    print(f"wrote {out}/synth.json, report.md, {man['verilog']}, manifest.json")
+    timing = (f"Fmax {r['fmax_mhz']:.1f} MHz (constraint {args.clock_mhz} MHz, {'met' if r['timing_met'] else 'NOT met'})"
+              if args.pnr and r.get("fmax_mhz") is not None else
+              "no place and route (--no-pnr): no Fmax" if not args.pnr else "no Fmax: see nextpnr.log")
+    print(f"  {r['luts']} LUTs, {r['flip_flops']} FFs, {r['mult18x18']} 18x18 multipliers, {r['block_rams']} block RAMs; "
+          + timing)
+    if r.get("fmax_mhz"):
+        print(f"  {r['cycles_per_step']} cycles per step -> {r['modelled_steps_per_s']:.0f} steps/s modelled at Fmax")
+    return 0
+
+
+def _synthesize(args, bt, out: Path, emit, synthesize):
     man = emit.write(bt, out, lanes=args.lanes, node_lanes=args.node_lanes)
     r = synthesize(out / man["verilog"], man["top"], out, device=args.device, clock_mhz=args.clock_mhz,
                    progress=True, place_and_route=args.pnr)
@@ -40,12 +57,4 @@ def run(args) -> int:
         r["modelled_steps_per_s"] = r["fmax_mhz"] * 1e6 / cps
         r["modelled_element_updates_per_s"] = r["modelled_steps_per_s"] * man["elements"]
     (out / "synth.json").write_text(json.dumps(r, indent=2, default=str))
-    print(f"wrote {out}/synth.json, report.md, {man['verilog']}, manifest.json")
-    timing = (f"Fmax {r['fmax_mhz']:.1f} MHz (constraint {args.clock_mhz} MHz, {'met' if r['timing_met'] else 'NOT met'})"
-              if args.pnr and r.get("fmax_mhz") is not None else
-              "no place and route (--no-pnr): no Fmax" if not args.pnr else "no Fmax: see nextpnr.log")
-    print(f"  {r['luts']} LUTs, {r['flip_flops']} FFs, {r['mult18x18']} 18x18 multipliers, {r['block_rams']} block RAMs; "
-          + timing)
-    if r.get("fmax_mhz"):
-        print(f"  {cps} cycles per step -> {r['modelled_steps_per_s']:.0f} steps/s modelled at Fmax")
-    return 0
+    return r, man

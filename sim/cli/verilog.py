@@ -21,8 +21,11 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from hw import emit
+    from sim.runfile import check_output_dir, output_directory
+    check_output_dir(args.out)                     # before the range analysis
     bt = hardware_model(args)
-    man = emit.write(bt, args.out, lanes=args.lanes, node_lanes=args.node_lanes)
+    with output_directory(args.out) as tmp:        # whole or not at all: core.v and manifest.json together
+        man = emit.write(bt, tmp, lanes=args.lanes, node_lanes=args.node_lanes)
     cps = man["cycles_per_step"]
     print(f"wrote {args.out}/{man['verilog']} ({len(man['verilog_modules'])} modules) and manifest.json")
     print(f"  units: {', '.join(u['unit'] for u in man['units_present'])}")
