@@ -77,9 +77,11 @@ def range_analysis(system: System, params: Params, units: HardwareUnits, steps: 
     # quantities the run never reached (a contact that never happens) still need formats: take their
     # ranges from one step of the initial state with every gate open
     probe = FloatArith(open_gates=True)
-    step(probe, float_state(system, units, system.x0, system.v0, system.a0), params)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        step(probe, float_state(system, units, system.x0, system.v0, system.a0), params)
     for q, v in probe.peak.items():
-        peaks.setdefault(q, v)
+        if np.isfinite(v):               # 1/sqrt(0) of an opened gate (a friction at rest) is no range
+            peaks.setdefault(q, v)
     # the 3D friction scale 1/|k_f v_t| is formed only while sliding, which a scene at rest never does in
     # the probe: its range is then that of 1/sqrt(peak |k_f v_t|^2), with headroom for smaller inputs
     for mag2, inv in (("fmag2", "finv"), ("pfmag2", "pfinv")):

@@ -91,7 +91,9 @@ class PlayController:
             self.target = np.array([event.xdata, event.ydata], float)
 
     def on_release(self, event) -> None:
+        """The probe stops where it is (it is not thrown towards the pointer's last position)."""
         self.dragging = False
+        self.target = None
 
     # ---- the loop
     def next_position(self) -> np.ndarray:
