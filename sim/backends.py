@@ -38,7 +38,7 @@ def run_backend(system: System, backend: str, steps=None, every=None, progress=F
         if backend == "cpu":
             from sim.cpu import Cpu
             cpu = Cpu(system)
-            if system.probe is not None and not cpu.takes_probe:
+            if system.probe is not None and not getattr(cpu, "takes_probe", False):
                 from golden.errors import RheoError
                 raise RheoError(f"scene '{system.name}' has a probe, which the cpu backend cannot run yet; "
                                 f"use --backend golden or fixed")

@@ -83,7 +83,7 @@ class Session:
             raise HapticError(f"scene '{self.system.name}' has no [probe] table: nothing to touch it with")
         self.backend = backend
         self.stepper = _stepper(self.system, backend, preset, bittrue)
-        if not self.stepper.takes_probe:
+        if not getattr(self.stepper, "takes_probe", False):
             raise HapticError(f"backend '{backend}' cannot take a probe yet; use "
                               f"{' or '.join(b for b in HAPTIC_BACKENDS if b != backend)}")
         self.state = self.stepper.initial_state()
