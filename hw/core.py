@@ -77,7 +77,7 @@ class CoreConfig:
                 raise ValueError(f"{name} must be an integer in 1..64, got {v!r}")
         if self.params.probe is not None:
             raise NotSupported("this core has no probe port yet (issue 16 item 3: the streaming core's); a scene "
-                               "with a [probe] runs on the golden, fixed and cpu backends")
+                               "with a [probe] runs on the golden and fixed backends")
 
     @classmethod
     def of(cls, bt, lanes=1, node_lanes=1) -> "CoreConfig":

@@ -24,6 +24,9 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from sim import report
     system = load_system(args.scene)
+    if system.probe is not None:
+        raise UsageError(f"scene '{system.name}' has a probe: the report's runs at other dt and on the cpu backend "
+                         f"do not take one yet (a device sample is k steps); use rheo haptic and rheo simulate")
     clock, source = args.clock_mhz, "assumed (--clock-mhz)"
     if args.synth is not None:
         try:
