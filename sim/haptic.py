@@ -219,8 +219,10 @@ def design_trajectory(system: System, samples: int | None = None) -> np.ndarray:
 def run_trajectory(session: Session, positions: np.ndarray, every: int | None = None, progress=None) -> dict:
     """Drive `session` along positions (S, D); record the probe per sample and a frame every `every`
     samples (default: about 200 frames; the initial state and the last sample always). Returns the run-file
-    arrays of a haptic run: t, x, v, a per frame, and probe_t, probe_p, probe_force, probe_contacts (and
-    probe_force_raw on fixed-point backends) per sample."""
+    arrays of a haptic run: t, x, v, a per frame (and a fixed-point backend's raw words and saturation
+    counts), and probe_t, probe_p, probe_force, probe_contacts (and probe_force_raw on fixed-point
+    backends) per sample. Every frame is checked by the divergence watchdog (and a fixed-point backend's
+    saturations for a runaway)."""
     from golden.watchdog import EnergyWatch
     from golden.system import State
     positions = np.asarray(positions, float)
@@ -236,7 +238,7 @@ def run_trajectory(session: Session, positions: np.ndarray, every: int | None = 
     t = np.empty(n_frames)
     force = np.empty((S, D))
     contacts = np.empty(S, np.int64)
-    raw = []
+    raw, per_frame = [], {}
     f = 0
 
     def record(done):
@@ -244,6 +246,8 @@ def run_trajectory(session: Session, positions: np.ndarray, every: int | None = 
         x[f], v[f], a[f] = session.frame()
         t[f] = session.time
         watch.check(State(x[f], v[f], a[f], session.state.step), session.position)
+        for key, val in session.stepper.record(session.state).items():     # raw words; runaway saturations stop
+            per_frame.setdefault(key, []).append(val)
         f += 1
 
     record(0)
@@ -265,4 +269,5 @@ def run_trajectory(session: Session, positions: np.ndarray, every: int | None = 
                wall_seconds=np.float64(wall))
     if raw:
         out["probe_force_raw"] = np.asarray(raw, np.int64)
+    out.update({key: np.asarray(val) for key, val in per_frame.items()})
     return out

@@ -50,7 +50,8 @@ def run_arrays(system: System, run: Run, backend: str) -> dict:
 def haptic_arrays(system: System, arrays: dict, backend: str, extra: dict | None = None) -> dict:
     """The run file of a haptic run (sim/haptic.py run_trajectory's arrays): the frames and the mesh as
     run_arrays, plus the probe per device sample."""
-    run = Run(arrays["t"], arrays["x"], arrays["v"], arrays["a"], float(arrays["wall_seconds"]), {}, dict(extra or {}))
+    raw = {k: arrays[k] for k in ("x_raw", "v_raw", "a_raw", "saturations") if k in arrays}
+    run = Run(arrays["t"], arrays["x"], arrays["v"], arrays["a"], float(arrays["wall_seconds"]), raw, dict(extra or {}))
     out = run_arrays(system, run, backend)
     out.update({k: v for k, v in arrays.items() if k.startswith("probe_")})
     return out
