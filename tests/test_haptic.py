@@ -324,12 +324,21 @@ def golden_readings():
     return run_api("poke-2d-rheological", "golden")
 
 
-def test_api_fixed_backend_is_bit_for_bit_repeatable(golden_readings):
-    from conftest import formats
+@pytest.fixture(scope="module")
+def wide_formats():
+    """The wide preset's formats for these runs: a range analysis of the design poke's first 1,000 steps (the
+    API runs take 600; `connect` derives them from the whole poke)."""
     from hw.bittrue import BitTrue
-    fmt = formats("poke-2d-rheological", "wide")
-    runs = [run_api("poke-2d-rheological", "fixed", bittrue=BitTrue(scene_system("poke-2d-rheological"), "wide",
-                                                                    formats=fmt)) for _ in range(2)]
+    return BitTrue(scene_system("poke-2d-rheological"), "wide", range_steps=1000).formats
+
+
+def fixed_session_model(formats):
+    from hw.bittrue import BitTrue
+    return BitTrue(scene_system("poke-2d-rheological"), "wide", formats=formats)
+
+
+def test_api_fixed_backend_is_bit_for_bit_repeatable(wide_formats):
+    runs = [run_api("poke-2d-rheological", "fixed", bittrue=fixed_session_model(wide_formats)) for _ in range(2)]
     a, b = (np.array([r.raw for r in run]) for run in runs)
     assert np.array_equal(a, b)
     assert np.abs(a).max() > 0
@@ -338,9 +347,8 @@ def test_api_fixed_backend_is_bit_for_bit_repeatable(golden_readings):
 WIDE_FORCE_BUDGET = 1e-4     # of the peak force: the wide preset's force against golden's on the design poke
 
 
-def test_api_wide_preset_within_its_budget_of_golden(golden_readings):
-    from conftest import bittrue
-    fixed = run_api("poke-2d-rheological", "fixed", bittrue=bittrue("poke-2d-rheological", "wide"))
+def test_api_wide_preset_within_its_budget_of_golden(golden_readings, wide_formats):
+    fixed = run_api("poke-2d-rheological", "fixed", bittrue=fixed_session_model(wide_formats))
     g = np.array([r.force for r in golden_readings])
     f = np.array([r.force for r in fixed])
     peak = np.abs(g).max()
