@@ -5,7 +5,8 @@ lists in one place.
 
     b = SystemBuilder(dim)
     b.add_object("block", mesh, material, masses, pinned, position, velocity)   # returns its first node
-    system = b.build(name, gravity, dt, n_steps, every, floor=..., topology=..., collision=..., loads=...)
+    system = b.build(name, gravity, dt, n_steps, every, floor=..., topology=..., collision=..., loads=...,
+                     probe=...)
 
 A material is a resolved table (golden/scene.py MATERIALS or a scene's [material]): k1, c1, a0, a_min,
 a_max and either a constant c2 or the nonlinear damper's c_min, c_max, f1, f2.
@@ -20,6 +21,7 @@ import numpy as np
 from . import mesh as meshlib
 from .contact import Collision, Floor
 from .elements import ElementParams
+from .probe import Probe
 from .system import System, Topology
 
 NONLINEAR = ("c_min", "c_max", "f1", "f2")
@@ -112,9 +114,9 @@ class SystemBuilder:
 
     def build(self, name: str, gravity, dt: float, n_steps: int, every: int, floor: Floor | None = None,
               topology: TopologySpec | None = None, collision: CollisionSpec | None = None, loads=(),
-              formats: dict | None = None, description: str = "") -> System:
+              formats: dict | None = None, description: str = "", probe: Probe | None = None) -> System:
         """The System of the objects added. Friction regularisation left at NaN gets half the explicit limit
-        of its slip damper: on the floor m_min / dt (the limit is 2 m / dt for one node), between objects
+        of its slip damper: on the floor and the probe m_min / dt (the limit is 2 m / dt for one node), between objects
         m_min / (2 dt) (a vertex-facet pair moves both its sides)."""
         cat = np.concatenate
         D = self.dim
@@ -124,6 +126,8 @@ class SystemBuilder:
         m_min = float(mass.min())
         if floor is not None and math.isnan(floor.k_f):
             floor.k_f = m_min / dt
+        if probe is not None and math.isnan(probe.k_f):
+            probe.k_f = m_min / dt          # like the floor's: the probe is one more static-law contact
         topo = None
         if topology is not None:
             topo = Topology(meshlib.topology_pairs(cells, x0), topology.K, topology.C, topology.eps)
@@ -135,4 +139,4 @@ class SystemBuilder:
         return System(name, D, x0, cat(self._vel), mass, cat(self._pinned), edges, cat(self._a0), elem, cells,
                       cat(self._node_object), cat(self._cell_object).astype(np.int64), list(self.names),
                       np.asarray(gravity, float), dt, n_steps, every, floor, topo, coll, list(loads),
-                      list(self.materials), dict(formats or {}), description=description)
+                      list(self.materials), dict(formats or {}), description=description, probe=probe)

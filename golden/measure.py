@@ -74,7 +74,8 @@ def _run(system: System, dt: float, n: int, check, check_every: int, seed: int, 
     SimulationDiverged it raises (runaway saturations, seen when a frame is recorded) ends the run as
     unstable."""
     s, st = _start(system, dt, n, seed, perturb)
-    test = DivergenceTest(s, extra_energy=mechanical_energy(s, st.x, st.v, st.a))
+    test = DivergenceTest(s, extra_energy=mechanical_energy(s, st.x, st.v, st.a,
+                                                           None if st.probe is None else st.probe.p))
     g = Golden(s) if model is None else model(s, st)
     if model is not None:
         st = g.initial_state()
@@ -86,7 +87,7 @@ def _run(system: System, dt: float, n: int, check, check_every: int, seed: int, 
                 g.record(st)
             except SimulationDiverged as exc:          # only other models raise (golden steps never do)
                 return f"step {st.step}: {exc}", st.step
-            why = test.why(x, v, a, st.step) or check(st.step * dt, test.last_energy)
+            why = test.why(x, v, a, st.step, g.probe_position(st)) or check(st.step * dt, test.last_energy)
             if why is not None:
                 return f"step {st.step}: {why}", st.step
     return None, n
@@ -145,7 +146,7 @@ def measure(system: System, lo: float | None = None, hi: float | None = None, re
     (sim/cpu.py stability_model), the same physics compiled.
 
     compare: judge the trials against a reference run too (see trial); by default only when the scene
-    has something that moves it (loads, gravity or an initial velocity). Without, a run that only relaxes
+    has something that moves it (loads, gravity, an initial velocity or a probe's design poke). Without, a run that only relaxes
     the measuring perturbation is unstable exactly when it diverges, which the DivergenceTest sees.
 
     A reference run at dt_ref = 0.5 x dt_pred (or 0.5 x lo) over the scene's duration gives the energy
@@ -165,7 +166,8 @@ def measure(system: System, lo: float | None = None, hi: float | None = None, re
     duration = system.n_steps * system.dt
     span = duration if steps is None else min(duration, steps * 4 * base)
     if compare is None:
-        compare = bool(system.loads) or bool(np.any(system.gravity != 0)) or bool(np.any(system.v0 != 0))
+        compare = (bool(system.loads) or bool(np.any(system.gravity != 0)) or bool(np.any(system.v0 != 0))
+                   or (system.probe is not None and system.probe.depth > 0))
     ref = None
     while compare and ref is None:
         try:

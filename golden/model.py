@@ -2,7 +2,7 @@
 run loop every backend shares.
 
 All forces come from the state at the start of the step:
-    F = element forces + topology preservation + floor + collisions + loads
+    F = element forces + topology preservation + floor + collisions + probe + loads
     v <- v + dt (F / m + g)   (pinned nodes: v = 0)
     x <- x + dt v
     a <- clip(a + dt adot, a_min, a_max)
@@ -21,6 +21,8 @@ from abc import ABC, abstractmethod
 import numpy as np
 
 from .elements import element_forces
+from .errors import RheoError
+from .probe import design_sample
 from .system import Run, State, System, component_major, frame_steps
 from .topology import topology_forces
 from .watchdog import EnergyWatch
@@ -33,6 +35,7 @@ class Stepper(ABC):
     per-frame arrays a backend adds to its run file (raw fixed-point words, saturation counts)."""
 
     system: System
+    takes_probe: bool = False     # implements hold_probe / probe_reading (and steps a scene's probe)
 
     @abstractmethod
     def initial_state(self):
@@ -61,9 +64,32 @@ class Stepper(ABC):
         """Run-file metadata of this backend (none for float backends)."""
         return {}
 
+    # ---- the haptic probe (MODEL.md 4b): a host holds p for the next k steps, then reads the force
+    def hold_probe(self, st, p) -> None:
+        """A device sample: p (D,) in metres, held for the next k steps with pdot = (p - p_prev) / (k dt);
+        from now on a host drives the probe (no design poke)."""
+        raise RheoError(f"the {type(self).__name__} backend cannot take a probe yet")
+
+    def probe_reading(self, st) -> tuple:
+        """(force on the probe in the last step (D,) in newtons, nodes touching it)."""
+        raise RheoError(f"the {type(self).__name__} backend cannot take a probe yet")
+
+    def probe_position(self, st):
+        """Where the probe is held now (D,) in metres; None without a probe."""
+        return None
+
+    def probe_raw(self, st):
+        """The force on the probe as the raw words a fixed-point backend computes it in; None in float."""
+        return None
+
+    def close(self) -> None:
+        """Release what the backend holds (a simulator); nothing for most."""
+
 
 class Golden(Stepper):
     """Steps a System in float64."""
+
+    takes_probe = True
 
     def __init__(self, system: System):
         import scipy.sparse as sp
@@ -100,14 +126,29 @@ class Golden(Stepper):
             for ld in system.loads:
                 if ld.start <= t < ld.end:
                     F[ld.nodes] += ld.force
+        if system.probe is not None:
+            pst = st.probe
+            pst.record(*system.probe.forces(st.x, st.v, pst.p, pst.pdot, F))
         return F, T, adot
 
     def initial_state(self) -> State:
         return State.initial(self.system)
 
+    def hold_probe(self, st: State, p) -> None:
+        st.probe.driven = True
+        st.probe.hold(self.system.probe, p, self.system.dt)
+
+    def probe_reading(self, st: State) -> tuple:
+        return st.probe.force.copy(), st.probe.contacts
+
+    def probe_position(self, st: State):
+        return None if st.probe is None else st.probe.p.copy()
+
     def step(self, st: State) -> None:
         system = self.system
         dt = system.dt
+        if system.probe is not None:
+            design_sample(system.probe, st.probe, st.step, dt)
         F, T, adot = self.forces(st, st.step * dt)
         vt, xt, Ft = st.v.T, st.x.T, F.T
         for k in range(system.dim):
@@ -160,7 +201,7 @@ class FrameRecorder:
     def add(self, st) -> None:
         f = self.n
         self.x[f], self.v[f], self.a[f] = self.stepper.frame(st)
-        self.watch.check(State(self.x[f], self.v[f], self.a[f], st.step))
+        self.watch.check(State(self.x[f], self.v[f], self.a[f], st.step), self.stepper.probe_position(st))
         for k, val in self.stepper.record(st).items():
             self.raw.setdefault(k, []).append(val)
         self.n += 1

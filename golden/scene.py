@@ -22,6 +22,7 @@ from .errors import RheoError
 from .builder import NONLINEAR, CollisionSpec, SystemBuilder, TopologySpec
 from .contact import Floor
 from .limits import mesh_nodes_fit
+from .probe import Probe
 from .system import Load, System
 
 
@@ -353,7 +354,7 @@ def compile_scene(scene: Scene) -> System:
     chk = _Tables(scene.source)
     d = scene.data
     chk.keys(d, "", ("dim", "integrator", "objects"),
-             ("name", "description", "world", "topology", "collision", "loads", "formats"))
+             ("name", "description", "world", "topology", "collision", "loads", "formats", "probe"))
     dim = d["dim"]
     if isinstance(dim, bool) or not isinstance(dim, int) or dim not in (2, 3):
         chk.fail("", f"'dim' must be 2 or 3, got {dim!r}")
@@ -462,8 +463,25 @@ def compile_scene(scene: Scene) -> System:
             chk.fail(where, f"'end' ({end:g}) must be after 'start' ({start:g})")
         loads.append(Load(sel, chk.vector(ld, "force", where, dim), start, end))
 
+    probe = _probe(chk, d["probe"], dim, n_steps * dt) if "probe" in d else None
+
     formats = d.get("formats", {})
     if not isinstance(formats, dict):
         chk.fail("formats", "must be a table of quantity = \"SQ(i, f)\"")
     return builder.build(scene.name, gravity, dt, n_steps, every, floor, topology, collision, loads, formats,
-                         description=scene.description)
+                         description=scene.description, probe=probe)
+
+
+def _probe(chk: _Tables, tbl, dim: int, duration: float) -> Probe:
+    """[probe]: the haptic probe (MODEL.md 4b) and its design poke."""
+    w = "probe"
+    chk.keys(tbl, w, ("radius", "K", "position"), ("C", "mu", "k_f", "steps_per_sample", "depth", "poke_time"))
+    return Probe(chk.number(tbl, "radius", w, lo=0, lo_open=True),
+                 chk.number(tbl, "K", w, lo=0, lo_open=True),
+                 chk.number(tbl, "C", w, default=0.0, lo=0),
+                 chk.number(tbl, "mu", w, default=0.0, lo=0),
+                 chk.number(tbl, "k_f", w, default=math.nan, lo=0, lo_open=True),
+                 chk.integer(tbl, "steps_per_sample", w, default=10),
+                 chk.vector(tbl, "position", w, dim),
+                 chk.number(tbl, "depth", w, default=0.0, lo=0),
+                 chk.number(tbl, "poke_time", w, default=0.5 * duration, lo=0, lo_open=True))

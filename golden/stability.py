@@ -21,8 +21,10 @@ predict(system) -> dict
     * contact mode, for a node that can touch a contact: the stiffest single contact it can make,
       floor (K, C) on a free surface node, one vertex-facet collision (2 K, 2 C) on a free surface node,
       one topology-preservation pair (2 K, 2 C) on a free cell node (2 K, 2 C is the Gershgorin sum over a
-      vertex and its facet, whose weights add up to 1), plus the node's own element terms with weight 1,
-      along the floor normal (or lambda_max for the other contacts). A contact (K = 1e3..1e4) is far
+      vertex and its facet, whose weights add up to 1), the haptic probe (K, C) on any free node (it
+      touches nodes, not a surface: a static-law contact like the floor, MODEL.md 4b), plus the node's own
+      element terms with weight 1, along the floor normal (or lambda_max for the other contacts, the
+      probe's normal pointing anywhere). A contact (K = 1e3..1e4) is far
       stiffer than the elements around it (k1 = 50..2000), so its fastest mode sits on the contact node
       and its neighbours follow it only by k1 / K; adding the contact to the mesh mode's Gershgorin sum
       would add up the damping of two different modes.
@@ -412,10 +414,11 @@ def node_terms(system: System) -> dict:
     t = {"m": m, "free": free}
 
     # penalty terms that can touch the node: the stiffest single contact among the floor (K, C), one
-    # vertex-facet collision and one topology-preservation pair (2 K, 2 C: the Gershgorin sum over the
-    # vertex and its facet, whose weights add up to 1)
+    # vertex-facet collision, the probe (K, C: any node) and one topology-preservation pair (2 K, 2 C: the
+    # Gershgorin sum over the vertex and its facet, whose weights add up to 1)
     zeros = np.zeros(N)
-    for name in ("k_floor", "c_floor", "k_collision", "c_collision", "k_topology", "c_topology", "friction"):
+    for name in ("k_floor", "c_floor", "k_collision", "c_collision", "k_topology", "c_topology", "k_probe",
+                 "c_probe", "friction"):
         t[name] = zeros.copy()
     if system.floor is not None:
         b = _boundary_nodes(system) & free
@@ -438,7 +441,13 @@ def node_terms(system: System) -> dict:
         on &= free
         t["k_topology"][on] = 2.0 * system.topology.K
         t["c_topology"][on] = 2.0 * system.topology.C
-    kinds = ("floor", "collision", "topology")
+    if system.probe is not None:
+        pb = system.probe
+        t["k_probe"][free] = pb.K
+        t["c_probe"][free] = pb.C
+        if pb.mu > 0:
+            t["friction"][free] = np.maximum(t["friction"][free], pb.k_f)
+    kinds = ("floor", "collision", "topology", "probe")
     K = np.stack([t[f"k_{k}"] for k in kinds])
     C = np.stack([t[f"c_{k}"] for k in kinds])
     pick = np.argmax(K, 0)

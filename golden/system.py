@@ -9,6 +9,7 @@ import numpy as np
 
 from .contact import Collision, Floor
 from .elements import ElementParams
+from .probe import Probe, ProbeState
 
 
 @dataclass
@@ -54,6 +55,7 @@ class System:
     materials: list = field(default_factory=list)   # per object: the resolved material table
     formats: dict = field(default_factory=dict)     # [formats] overrides for the bit-true model / hardware
     description: str = ""
+    probe: Probe | None = None                      # the haptic probe (MODEL.md 4b)
 
     @property
     def n_nodes(self) -> int:
@@ -75,14 +77,17 @@ class State:
     v: np.ndarray
     a: np.ndarray            # (E,)
     step: int = 0
+    probe: ProbeState | None = None    # the probe's held inputs and last outputs (scenes with a probe)
 
     @classmethod
     def initial(cls, system: System) -> "State":
-        return cls(component_major(system.x0), component_major(system.v0), system.a0.copy())
+        return cls(component_major(system.x0), component_major(system.v0), system.a0.copy(),
+                   probe=ProbeState.initial(system.probe) if system.probe is not None else None)
 
     def copy(self) -> "State":
         """An independent state (component_major alone returns its argument when it is already so stored)."""
-        return State(component_major(self.x.copy()), component_major(self.v.copy()), self.a.copy(), self.step)
+        return State(component_major(self.x.copy()), component_major(self.v.copy()), self.a.copy(), self.step,
+                     self.probe.copy() if self.probe is not None else None)
 
 
 @dataclass

@@ -1,8 +1,8 @@
 """Divergence watchdog: every run is checked once per recorded frame, so no run ends in a silently wrong
 result. `EnergyWatch(system).check(frame)` raises SimulationDiverged when the state is not finite, a node
 is further than BOX x the scene size from its centre, or the mechanical energy (kinetic + k1 s^2 / 2 +
-penalty) is above GROWTH x the work bound (initial energy + gravity and loads acting over the scene
-size); the message names the step, the time, the reason and the predicted dt limit (golden/stability.py).
+penalty) is above GROWTH x the work bound (initial energy + gravity, loads and the probe acting over the
+scene size); the message names the step, the time, the reason and the predicted dt limit (golden/stability.py).
 `DivergenceTest` is the same decision without raising (the stability trials, golden/measure.py)."""
 from __future__ import annotations
 
@@ -25,8 +25,9 @@ def scene_size(system: System) -> float:
     return ext if ext > 0 else 1.0
 
 
-def mechanical_energy(system: System, x, v, a) -> float:
-    """Kinetic + element spring energy k1 s^2 / 2 + penalty energy (floor, topology, collision)."""
+def mechanical_energy(system: System, x, v, a, probe_p=None) -> float:
+    """Kinetic + element spring energy k1 s^2 / 2 + penalty energy (floor, topology, collision, the probe at
+    probe_p, by default at its initial position)."""
     x = np.asarray(x, float)
     v = np.asarray(v, float)
     free = ~system.pinned
@@ -49,6 +50,8 @@ def mechanical_energy(system: System, x, v, a) -> float:
         E += 0.5 * tp.K * float(pen @ pen)
     if system.collision is not None and len(system.collision.facets):
         E += _collision_energy(system.collision, x)
+    if system.probe is not None:
+        E += system.probe.energy(x, system.probe.position if probe_p is None else probe_p)
     return E
 
 
@@ -75,12 +78,15 @@ def _collision_energy(col, x) -> float:
 
 def work_bound(system: System) -> float:
     """An upper scale of the energy the scene can legitimately hold: initial energy plus the work of
-    gravity and of the loads over the scene size."""
+    gravity, of the loads and of the probe (golden/probe.py max_force) over the scene size."""
     size = scene_size(system)
     free = ~system.pinned
     W = float(np.linalg.norm(system.gravity)) * float(np.sum(system.mass[free])) * size
     for ld in system.loads:
         W += float(np.linalg.norm(ld.force)) * len(ld.nodes) * size
+    if system.probe is not None:
+        from .probe import max_force
+        W += max_force(system.probe, system.x0) * size
     return W + mechanical_energy(system, system.x0, system.v0, system.a0)
 
 
@@ -97,8 +103,8 @@ class DivergenceTest:
         self.reference = max(work_bound(system) + extra_energy, 1e-300)
         self.last_energy = 0.0
 
-    def why(self, x, v, a, step: int = 0) -> str | None:
-        """None while the run is sane, else a short reason."""
+    def why(self, x, v, a, step: int = 0, probe_p=None) -> str | None:
+        """None while the run is sane, else a short reason (probe_p: where the probe is, if it moved)."""
         if not (np.isfinite(x).all() and np.isfinite(v).all() and np.isfinite(a).all()):
             bad = np.flatnonzero(~np.isfinite(np.asarray(x)).all(1) | ~np.isfinite(np.asarray(v)).all(1))
             return "the state is no longer finite" + (f" (node {bad[0]})" if bad.size else "")
@@ -106,7 +112,7 @@ class DivergenceTest:
         if far > BOX * self.size:
             return f"a node is {far:.3g} m from the scene centre ({BOX:g} x the scene size {self.size:.3g} m)"
         with np.errstate(over="ignore", invalid="ignore"):
-            E = mechanical_energy(self.system, x, v, a)
+            E = mechanical_energy(self.system, x, v, a, probe_p)
         self.last_energy = E
         if not math.isfinite(E):
             return "the mechanical energy is no longer finite"
@@ -131,8 +137,8 @@ class EnergyWatch:
             self._pred = predict(self.system)
         return self._pred
 
-    def check(self, state) -> None:
-        why = self.test.why(state.x, state.v, state.a, state.step)
+    def check(self, state, probe_p=None) -> None:
+        why = self.test.why(state.x, state.v, state.a, state.step, probe_p)
         if why is None:
             return
         system = self.system

@@ -187,6 +187,16 @@ class ArrayArith(Arith):
     def state(self, q, x): ...
 
     @abstractmethod
+    def host_value(self, q, x):
+        """A value a host writes at run time (the probe's position, SI converted to hardware units) in q's
+        format: rounded, its saturations counted as the run's."""
+
+    @abstractmethod
+    def initial_value(self, q, x):
+        """A value of the initial state (the probe's initial position) in q's format, converted like the
+        initial state (saturations counted as the constants')."""
+
+    @abstractmethod
     def take(self, v, idx): ...
 
     @abstractmethod
@@ -222,6 +232,12 @@ class FloatArith(ArrayArith):
         return self._rec(q, value)
 
     def state(self, q, x):
+        return self._rec(q, x)
+
+    def host_value(self, q, x):
+        return self._rec(q, x)
+
+    def initial_value(self, q, x):
         return self._rec(q, x)
 
     def value(self, v: V) -> np.ndarray:
@@ -331,6 +347,12 @@ class FixedArith(ArrayArith):
 
     def state(self, q, raw):
         return V(np.asarray(raw, np.int64), q)
+
+    def host_value(self, q, x):
+        return V(self.shape(q).from_float(x, self.sat, q), q)
+
+    def initial_value(self, q, x):
+        return V(self.convert_constant(q, x), q)
 
     def value(self, v: V) -> np.ndarray:
         return self.shape(v.q).to_float(v.x)

@@ -17,20 +17,30 @@ from golden.errors import BadArgument, SimulationDiverged
 from golden.model import Stepper
 from golden.system import System
 from .arith import FixedArith, FloatArith
-from .datapath import HwState, Params, step
+from .datapath import HwProbe, HwState, Params, probe_hold, probe_initial, step
 from .fixed import Saturations
 from .formats import FORMAT_PRESETS, FormatError, FormatSet, derive
 from .units import HardwareUnits
 
 FRICTION_SCALE_HEADROOM = 2.0 ** 8
-RSQRT_INPUTS = {"inv_l": "l2", "tinv": "tl2", "tinv2": "tl4", "finv": "fmag2", "cinv": "cl2", "cinv2": "cl4"}
+RSQRT_INPUTS = {"inv_l": "l2", "tinv": "tl2", "tinv2": "tl4", "finv": "fmag2", "cinv": "cl2", "cinv2": "cl4",
+                "pinv": "pr2", "pfinv": "pfmag2"}
 
 
-def float_state(system: System, units: HardwareUnits, x, v, a, step_no=0) -> HwState:
+def float_state(system: System, units: HardwareUnits, x, v, a, step_no=0, probe=None) -> HwState:
+    """A state in float hardware units; `probe`: the golden ProbeState to take the probe's registers from
+    (default: at its initial position, at rest)."""
     X = units.length(x)
     U = units.velocity(v)
+    hp = None
+    if system.probe is not None:
+        from golden.probe import ProbeState
+        gp = probe if probe is not None else ProbeState.initial(system.probe)
+        P, R = units.length(gp.p), float(units.length(system.probe.radius))
+        hp = HwProbe(list(P), list(units.velocity(gp.pdot)), list(P - R), list(P + R), [0.0] * system.dim,
+                     driven=gp.driven, node_F=[np.zeros(0)] * system.dim)
     return HwState([X[:, k].copy() for k in range(system.dim)], [U[:, k].copy() for k in range(system.dim)],
-                   np.asarray(a, float).copy(), step_no)
+                   np.asarray(a, float).copy(), step_no, hp)
 
 
 def scene_ranges(system: System, steps: int | None = None):
@@ -59,6 +69,11 @@ def range_analysis(system: System, params: Params, units: HardwareUnits, steps: 
         st = new
     increments = {q: _typical_increment(v) for q, v in inc.items() if n and not (q == "a" and params.fixed_a)}
     peaks = dict(ar.peak)
+    if params.probe is not None:
+        # the probe's geometry has known ranges: inside its box |x_k - p_k| < R, |x - p|^2 < D R^2, d < R
+        R = params.probe["R"]
+        for q, v in (("pr", R), ("pr2", params.dim * R * R), ("pdist", R)):
+            peaks[q] = max(peaks.get(q, 0.0), v)
     # quantities the run never reached (a contact that never happens) still need formats: take their
     # ranges from one step of the initial state with every gate open
     probe = FloatArith(open_gates=True)
@@ -68,11 +83,13 @@ def range_analysis(system: System, params: Params, units: HardwareUnits, steps: 
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         step(probe, float_state(system, units, system.x0, system.v0, system.a0), params)
     for q, v in probe.peak.items():
-        peaks.setdefault(q, v)
+        if np.isfinite(v):               # 1/sqrt(0) of an opened gate (a friction at rest) is no range
+            peaks.setdefault(q, v)
     # the 3D friction scale 1/|k_f v_t| is formed only while sliding, which a scene at rest never does in
     # the probe: its range is then that of 1/sqrt(peak |k_f v_t|^2), with headroom for smaller inputs
-    if "fmag2" in peaks and "finv" not in peaks:
-        peaks["finv"] = FRICTION_SCALE_HEADROOM / np.sqrt(max(peaks["fmag2"], np.finfo(float).tiny))
+    for mag2, inv in (("fmag2", "finv"), ("pfmag2", "pfinv")):
+        if mag2 in peaks and inv not in peaks:
+            peaks[inv] = FRICTION_SCALE_HEADROOM / np.sqrt(max(peaks[mag2], np.finfo(float).tiny))
     return peaks, increments
 
 
@@ -113,6 +130,8 @@ class FloatDatapath(Stepper):
     """The hardware's step (hw/datapath.py) in float64, in hardware units: the range analysis' run, equal to
     the golden model up to float rounding."""
 
+    takes_probe = True
+
     def __init__(self, system: System):
         self.system, self.units = system, HardwareUnits.of(system)
         self.params, self.ar = Params.of(system, self.units), FloatArith()
@@ -122,16 +141,28 @@ class FloatDatapath(Stepper):
 
     def step(self, st: HwState) -> None:
         new = step(self.ar, st, self.params)
-        st.X, st.U, st.A, st.step = new.X, new.U, new.A, new.step
+        st.X, st.U, st.A, st.step, st.probe = new.X, new.U, new.A, new.step, new.probe
 
     def frame(self, st: HwState):
         x = np.stack([self.units.to_length(c) for c in st.X], 1)
         v = np.stack([self.units.to_velocity(c) for c in st.U], 1)
         return x, v, np.asarray(st.A, float)
 
+    def hold_probe(self, st: HwState, p) -> None:
+        st.probe.driven = True
+        probe_hold(self.ar, self.params, st.probe, self.units.length(p))
+
+    def probe_reading(self, st: HwState) -> tuple:
+        return self.units.to_force(np.asarray(st.probe.F, float)), st.probe.contacts
+
+    def probe_position(self, st: HwState):
+        return None if st.probe is None else self.units.to_length(np.asarray(st.probe.P, float))
+
 
 class BitTrue(Stepper):
     """Steps a System bit for bit as the hardware does."""
+
+    takes_probe = True
 
     def __init__(self, system: System, preset: str = "wide", formats: FormatSet | None = None,
                  overrides: dict | None = None, range_steps: int | None = None, ranges: tuple | None = None):
@@ -193,15 +224,33 @@ class BitTrue(Stepper):
         system = self.system
         X = self.units.length(system.x0)
         U = self.units.velocity(system.v0)
-        conv = (ar or self.ar).convert_constant
+        ar = ar or self.ar
+        conv = ar.convert_constant
         return HwState([conv("x", X[:, k]) for k in range(system.dim)], [conv("u", U[:, k]) for k in range(system.dim)],
-                       conv("a", system.a0), 0)
+                       conv("a", system.a0), 0,
+                       probe_initial(ar, self.params) if self.params.probe is not None else None)
 
     def step(self, st: HwState) -> None:
         before = self.sat.total
         new = step(self.ar, st, self.params)
-        st.X, st.U, st.A, st.step = new.X, new.U, new.A, new.step
+        st.X, st.U, st.A, st.step, st.probe = new.X, new.U, new.A, new.step, new.probe
         self.runaway.add(st.step, self.sat.total - before)
+
+    def hold_probe(self, st: HwState, p) -> None:
+        """A device sample: the host converts p (metres) to the x format (rounded; a position the format
+        cannot hold saturates and counts), and the sample kernel forms pdot and the bounding box."""
+        st.probe.driven = True
+        probe_hold(self.ar, self.params, st.probe, self.units.length(p))
+
+    def probe_reading(self, st: HwState) -> tuple:
+        return self.units.to_force(self.formats["fprobe"].to_float(np.asarray(st.probe.F))), st.probe.contacts
+
+    def probe_raw(self, st: HwState) -> np.ndarray:
+        """The force on the probe as raw fprobe words (what the hardware's force stream will carry)."""
+        return np.asarray(st.probe.F, np.int64).copy()
+
+    def probe_position(self, st: HwState):
+        return None if st.probe is None else self.units.to_length(self.formats["x"].to_float(np.asarray(st.probe.P)))
 
     def frame(self, st: HwState):
         fm = self.formats

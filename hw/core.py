@@ -45,7 +45,7 @@ from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
 from golden.errors import BadArgument
-from .datapath import Params, _node_flags, collision_kernel, element_kernel, node_kernel, pair_kernel
+from .datapath import NotSupported, Params, _node_flags, collision_kernel, element_kernel, node_kernel, pair_kernel
 from .hostmap import ADDR_BITS, ELEM_BASE, ID_WORD, NODE_BASE, HostMap, Reg
 from .pipeline import PipeArith
 from .rtl_fixed import as_shape, tree_sum
@@ -76,6 +76,9 @@ class CoreConfig:
         for name, v in (("lanes", self.lanes), ("node_lanes", self.node_lanes)):
             if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 64:
                 raise BadArgument(f"{name} must be an integer in 1..64, got {v!r}")
+        if self.params.probe is not None:
+            raise NotSupported("this core has no probe port yet (issue 16 item 3: the streaming core's); a scene "
+                               "with a [probe] runs on the golden and fixed backends")
 
     @classmethod
     def of(cls, bt, lanes=1, node_lanes=1) -> "CoreConfig":

@@ -19,12 +19,18 @@ equals the golden model up to float rounding, a test) and `FixedArith` runs it b
               N = max(0, K (h - d) - C vn), friction -clip(k_f v_t, mu N); +F to the vertex, -w F to
               the facet (exact sum 0)
   floor       N = max(0, -K h - C u_z) where h < 0, friction -clip(k_f u_t, mu N)
+  probe       (MODEL.md 4b) per device sample: pdot = (p - p_prev) / k, the bounding box p -+ R; per node:
+              inside the box, r = x - p, then the gate |r|^2 < R^2 before any square root (a far node
+              computes nothing, so it saturates nothing); 1/d (rsqrt unit), n = r / d,
+              N = max(0, K (R - d) - C (u - pdot) . n), friction -clip(k_f v_t, mu N) as the floor's; the
+              probe's force is minus the exact integer sum of the node forces (at their binary point)
   loads       constant forces in their time windows
   nodes       u += mu_i F + g; pinned: u = 0; x += u;  a = clip(a + adot, a_min, a_max)
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -76,6 +82,7 @@ class Params:
     topology: dict | None = None
     collision: dict | None = None
     floor: dict | None = None
+    probe: dict | None = None
     loads: list = field(default_factory=list)
     dt: float = 1.0
 
@@ -131,6 +138,13 @@ class Params:
             fl = system.floor
             p.floor = dict(h=float(u.length(fl.height)), K=float(u.stiffness(fl.K)), C=float(u.damping(fl.C)),
                            mu=fl.mu, kf=float(u.damping(fl.k_f)))
+        if system.probe is not None:
+            pb = system.probe
+            R = float(u.length(pb.radius))
+            p.probe = dict(R=R, R2=R * R, K=float(u.stiffness(pb.K)), C=float(u.damping(pb.C)), mu=pb.mu,
+                           kf=float(u.damping(pb.k_f)), k=int(pb.k), inv_k=1.0 / pb.k,
+                           p0=u.length(pb.position),
+                           design=lambda s, pb=pb, dt=system.dt: u.length(pb.design_position(s, dt)))
         p.loads = [(ld.nodes, [np.full(len(ld.nodes), fk) if fk != 0.0 else None for fk in u.force(ld.force)],
                     ld.start, ld.end) for ld in system.loads]
         p.dt = system.dt
@@ -144,7 +158,38 @@ class Params:
                 "collision": self.collision is not None,
                 "collision_friction": bool(self.collision and self.collision["mu"] > 0),
                 "floor": self.floor is not None, "friction": bool(self.floor and self.floor["mu"] > 0),
+                "probe": self.probe is not None, "probe_friction": bool(self.probe and self.probe["mu"] > 0),
                 "loads": bool(self.loads)}
+
+
+@dataclass
+class HwProbe:
+    """The probe's registers, in the arithmetic's own numbers (raw words in fixed point): the position P
+    (x format) held for the device sample with its velocity Pdot and bounding box Lo, Hi (hw units), and the
+    outputs of the last step: the force on the probe F (fprobe), the contact count, and which nodes touch
+    it with their forces node_F (pfe). `driven`: a host holds P (else the scene's design poke does)."""
+    P: list
+    Pdot: list
+    Lo: list
+    Hi: list
+    F: list
+    contacts: int = 0
+    driven: bool = False
+    nodes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    node_F: list = field(default_factory=list)
+
+    def copy(self) -> "HwProbe":
+        return HwProbe(list(self.P), list(self.Pdot), list(self.Lo), list(self.Hi), list(self.F), self.contacts,
+                       self.driven, self.nodes.copy(), [np.copy(f) for f in self.node_F])
+
+
+class ProbeInputs(NamedTuple):
+    """What the node kernel reads of the probe (values of the arithmetic, per dimension): its position P,
+    velocity Pdot and bounding box Lo = P - R, Hi = P + R (hardware: registers loaded per sample)."""
+    P: list
+    Pdot: list
+    Lo: list
+    Hi: list
 
 
 @dataclass
@@ -153,6 +198,7 @@ class HwState:
     U: list
     A: np.ndarray      # (E,)
     step: int = 0
+    probe: HwProbe | None = None
 
 
 def state_difference(expected: HwState, X, U, A, step: int | None = None) -> str | None:
@@ -201,9 +247,62 @@ def step(ar, st: HwState, p: Params) -> HwState:
     F_elem = [ar.scatter(parts[k], N, Q.fe) for k in range(D)]     # exact sums, no rounding yet
 
     # ---- nodes
-    newX, newU = node_kernel(ar, p, X, U, F_elem, st.step, _node_flags(p))
+    if p.probe is None:
+        newX, newU = node_kernel(ar, p, X, U, F_elem, st.step, _node_flags(p))
+        probe = None
+    else:
+        probe = st.probe.copy()
+        if not probe.driven and st.step % p.probe["k"] == 0:        # the scene's design poke
+            probe_hold(ar, p, probe, p.probe["design"](st.step // p.probe["k"]))
+        full = lambda q, vs: [ar.state(q, np.full(N, v)) for v in vs]
+        inputs = ProbeInputs(full(Q.x, probe.P), full(Q.pdot, probe.Pdot), full(Q.x, probe.Lo), full(Q.x, probe.Hi))
+        newX, newU, (gate, Fp) = node_kernel(ar, p, X, U, F_elem, st.step, _node_flags(p), inputs)
+        _probe_outputs(ar, p, probe, gate, Fp)
     return HwState([x.x for x in newX], [u.x for u in newU], newA.x if newA is not None else st.A,
-                   st.step + 1)
+                   st.step + 1, probe)
+
+
+def probe_hold(ar, p: Params, probe: HwProbe, position) -> None:
+    """A device sample: the host's position (hardware units) into the probe's registers, through the
+    per-sample kernel (pdot from the previous position, the bounding box)."""
+    P = [ar.host_value(Q.x, np.array([v], float)) for v in np.asarray(position, float)]
+    Pprev = [ar.state(Q.x, np.array([v])) for v in probe.P]
+    Pdot, Lo, Hi = probe_sample_kernel(ar, p, P, Pprev)
+    probe.P, probe.Pdot, probe.Lo, probe.Hi = ([v.x[0] for v in vs] for vs in (P, Pdot, Lo, Hi))
+
+
+def probe_initial(ar, p: Params) -> HwProbe:
+    """The probe's registers at step 0: at its initial position (converted like the initial state), at rest."""
+    P = [ar.initial_value(Q.x, np.array([v], float)) for v in p.probe["p0"]]
+    Pdot, Lo, Hi = probe_sample_kernel(ar, p, P, P)
+    zero = ar.zeros(Q.fprobe, 1).x[0]
+    return HwProbe(*([v.x[0] for v in vs] for vs in (P, Pdot, Lo, Hi)), [zero] * p.dim,
+                   node_F=[ar.zeros(Q.pfe, 0).x for _ in range(p.dim)])
+
+
+def _probe_outputs(ar, p: Params, probe: HwProbe, gate, Fp) -> None:
+    """The force on the probe: minus the exact sum of the node probe forces (an integer sum at their binary
+    point in fixed point; hardware: an adder tree over the node lanes), and the contact count."""
+    if gate.empty:
+        probe.F = [ar.zeros(Q.fprobe, 1).x[0]] * p.dim
+        probe.contacts, probe.nodes = 0, np.zeros(0, np.int64)
+        probe.node_F = [ar.zeros(Q.pfe, 0).x for _ in range(p.dim)]
+        return
+    one = np.zeros(gate.size, np.int64)             # every touching node into the one sum
+    probe.F = [ar.neg(ar.convert(ar.scatter([(f, one)], 1, Q.fprobe), Q.fprobe)).x[0] for f in Fp]
+    probe.contacts, probe.nodes = int(gate.size), gate.full_idx
+    probe.node_F = [f.x for f in Fp]
+
+
+def probe_sample_kernel(ar, p: Params, P, Pprev):
+    """Once per device sample (hardware: when the port loads a sample): the probe's velocity
+    Pdot = (P - P_prev) / k and its bounding box Lo = P - R, Hi = P + R, per dimension."""
+    inv_k = ar.const(Q.inv_k, p.probe["inv_k"])
+    R = ar.const(Q.probe_R, p.probe["R"])
+    Pdot = [ar.mul(ar.sub(P[k], Pprev[k], Q.psample), inv_k, Q.pdot) for k in range(p.dim)]
+    Lo = [ar.sub(P[k], R, Q.x) for k in range(p.dim)]
+    Hi = [ar.add(P[k], R, Q.x) for k in range(p.dim)]
+    return Pdot, Lo, Hi
 
 
 def _node_flags(p: Params) -> dict:
@@ -305,13 +404,23 @@ def _psi(ar, p: Params, W, within):
     return _odd_piecewise(ar, W, p.curves["psi"], slopes, ar.zeros(Q.wdot, 1), within)[0]
 
 
-def node_kernel(ar, p: Params, X, U, F_elem, step_no, flags):
-    """One node (per item): forces from elements and pairs (exact sums), floor, loads -> new u and x."""
+def node_kernel(ar, p: Params, X, U, F_elem, step_no, flags, probe: ProbeInputs | None = None):
+    """One node (per item): forces from elements and pairs (exact sums), floor, probe, loads -> new u and x.
+
+    Returns (new X, new U); with a probe (the scene has one: `probe` gives its ProbeInputs) also
+    (gate, F): the nodes inside the probe and, for them, their probe force per dimension (pfe), which each
+    node takes exactly and whose sum over nodes is minus the force on the probe."""
     D = p.dim
     terms = [[F_elem[k]] for k in range(D)]
     if p.floor is not None:
         for k, v in floor_kernel(ar, p, X, U):
             terms[k].append(v)
+    if (p.probe is None) != (probe is None):
+        raise ValueError("node_kernel: the probe's inputs must be given exactly when the scene has a probe")
+    if probe is not None:
+        gate, Fp = probe_kernel(ar, p, X, U, probe)
+        for k, f in enumerate(Fp):
+            terms[k].append(gate.expand(f))
     for n, (nodes, force, _, _) in enumerate(p.loads):
         first, end = load_window(p, n)
         on = ar.flag(f"load{n}", flags[f"load{n}"]) & ar.window(step_no, first, end)
@@ -333,7 +442,54 @@ def node_kernel(ar, p: Params, X, U, F_elem, step_no, flags):
         u = ar.select(free, u, zero_u)
         newU.append(u)
         newX.append(ar.add(X[k], u, Q.x))
+    if probe is not None:
+        return newX, newU, (gate, Fp)
     return newX, newU
+
+
+def probe_kernel(ar, p: Params, X, U, probe: ProbeInputs):
+    """The probe's force on one node (MODEL.md 4b): returns (gate, F), the nodes with |x - p| < R and their
+    force per dimension (pfe; none when the gate is empty). Inside the probe's bounding box only (x compared
+    with the box: no arithmetic for a far node) r = x - p, then |r|^2 < R^2 before the square root."""
+    D, pb = p.dim, p.probe
+    box = None
+    for k in range(D):
+        c = ar.lt(probe.Lo[k], X[k]) & ar.lt(X[k], probe.Hi[k])
+        box = c if box is None else box & c
+    near = ar.gate(box)
+    if near.empty:
+        return near, []
+    r = [ar.sub(near.take(X[k]), near.take(probe.P[k]), Q.pr) for k in range(D)]
+    r2 = ar.sum([ar.mul(c, c, Q.pr2) for c in r], Q.pr2)
+    touch = near.gate(ar.lt(r2, ar.const(Q.probe_R2, pb["R2"])))
+    if touch.empty:
+        return touch, []
+    r, r2 = [touch.take(c) for c in r], touch.take(r2)
+    inv = ar.rsqrt(r2, Q.pinv)
+    n = [ar.mul(c, inv, Q.e) for c in r]
+    pen = ar.sub(ar.const(Q.probe_R, pb["R"]), ar.mul(r2, inv, Q.pdist), Q.pdist)
+    vrel = [ar.sub(touch.take(near.take(U[k])), touch.take(near.take(probe.Pdot[k])), Q.pdu) for k in range(D)]
+    vn = ar.sum([ar.mul(vrel[k], n[k], Q.pdu) for k in range(D)], Q.pdu)
+    N = ar.sub(ar.mul(ar.const(Q.probe_K, pb["K"]), pen, Q.pforce),
+               ar.mul(ar.const(Q.probe_C, pb["C"]), vn, Q.pforce), Q.pforce)
+    zero = touch.zeros(Q.pforce)
+    N = ar.select(ar.lt(N, zero), zero, N)
+    F = [ar.mul(N, n[k], Q.pfe) for k in range(D)]
+    if pb["mu"] > 0.0:
+        muN = ar.mul(ar.const(Q.mu, pb["mu"]), N, Q.pforce)
+        kf = ar.const(Q.probe_kf, pb["kf"])
+        if D == 2:
+            # slip speed along the tangent (-n_y, n_x); friction -clip(k_f v_t, mu N) on it
+            vt = ar.sub(ar.mul(vrel[1], n[0], Q.pdu), ar.mul(vrel[0], n[1], Q.pdu), Q.pdu)
+            f = ar.mul(kf, vt, Q.pforce)
+            f = ar.select(ar.lt(muN, f), muN, f)
+            f = ar.select(ar.lt(f, ar.neg(muN)), ar.neg(muN), f)
+            F = [ar.add(F[0], ar.mul(f, n[1], Q.pfe), Q.pfe), ar.sub(F[1], ar.mul(f, n[0], Q.pfe), Q.pfe)]
+        else:
+            kfu = [ar.mul(kf, ar.sub(vrel[k], ar.mul(vn, n[k], Q.pdu), Q.pdu), Q.pforce) for k in range(3)]
+            F = [ar.sub(F[k], fk, Q.pfe)
+                 for k, fk in enumerate(_capped_friction(ar, touch, kfu, muN, Q.pfmag2, Q.pfinv, Q.pforce))]
+    return touch, F
 
 
 def _facet_normal(ar, XF):
@@ -532,14 +688,15 @@ def floor_kernel(ar, p: Params, X, U):
     return out
 
 
-def _capped_friction(ar, gate, kfu, muN):
+def _capped_friction(ar, gate, kfu, muN, q_mag2=Q.fmag2, q_inv=Q.finv, q_force=Q.force):
     """|friction| = min(mu N, |k_f v_t|) along kfu = k_f v_t (a vector, items of `gate`), without a division:
     sticking (|kfu|^2 <= (mu N)^2) gives kfu itself; sliding scales kfu by mu N / |kfu| < 1 (1/sqrt unit).
-    The ratio is only formed when below 1, so it never saturates. Returns the force components (to negate)."""
-    mag2 = ar.sum([ar.mul(c, c, Q.fmag2) for c in kfu], Q.fmag2)
-    sliding = ar.lt(ar.mul(muN, muN, Q.fmag2), mag2)
+    The ratio is only formed when below 1, so it never saturates. Returns the force components (to negate).
+    The quantities: the floor's (default) or the probe's."""
+    mag2 = ar.sum([ar.mul(c, c, q_mag2) for c in kfu], q_mag2)
+    sliding = ar.lt(ar.mul(muN, muN, q_mag2), mag2)
     slide = gate.gate(sliding)
     if slide.empty:
         return kfu
-    ratio = ar.mul(slide.take(muN), ar.rsqrt(slide.take(mag2), Q.finv), Q.w)
-    return [ar.select(sliding, slide.lift(ar.mul(slide.take(c), ratio, Q.force)), c) for c in kfu]
+    ratio = ar.mul(slide.take(muN), ar.rsqrt(slide.take(mag2), q_inv), Q.w)
+    return [ar.select(sliding, slide.lift(ar.mul(slide.take(c), ratio, q_force)), c) for c in kfu]

@@ -2,7 +2,9 @@
 
 One place defines them: each quantity named in hw/datapath.py gets a fixed-point format here.
 - Word widths come from a preset: `state` words (positions, velocities, a), `operand` words (multiplier
-  inputs and products), and the node force accumulator (operand + `acc_guard` bits).
+  inputs and products), and the node force accumulator (operand + `acc_guard` bits). The probe's forces
+  (`probe_force`) sit at the node force's binary point with the integer bits their range needs, so that
+  each node takes its probe force exactly and the probe's force is their exact integer sum.
 - Binary points come from range analysis: the float datapath is run over the scene and the peak |value|
   of each quantity, times a headroom, sets its integer bits; the rest of the word is fraction.
   a, unit vectors and weights have fixed ranges ([0, 1] / [-1, 1]) and fixed formats.
@@ -58,6 +60,18 @@ QUANTITIES = {
     "cdist": ("operand", "collision: signed distances to the facet and projections along it"),
     "fmag2": ("operand", "friction: squared tangential force"),
     "finv": ("operand", "friction: 1 / |tangential force|"),
+    "pr": ("operand", "probe: node offset x - p inside the probe's bounding box (|x_k - p_k| < R)"),
+    "pr2": ("operand", "probe: squared distance |x - p|^2 (the gate |x - p|^2 < R^2)"),
+    "pinv": ("operand", "probe: 1 / |x - p| (rsqrt unit)"),
+    "pdist": ("operand", "probe: distance |x - p| and penetration R - |x - p|"),
+    "pdu": ("operand", "probe: node velocity relative to the probe, its normal and tangential parts"),
+    "psample": ("operand", "probe: displacement over one device sample, p - p_prev"),
+    "pdot": ("operand", "probe: velocity (p - p_prev) / k, as displacement per step"),
+    "pforce": ("operand", "probe: normal force N on a node, mu N, friction"),
+    "pfmag2": ("operand", "probe friction (3D): squared tangential force"),
+    "pfinv": ("operand", "probe friction (3D): 1 / |tangential force|"),
+    "pfe": ("probe_force", "probe: force component on a node, at the node force's binary point (enters facc exactly)"),
+    "fprobe": ("probe_force", "probe: the force on the probe, minus the exact sum of the node probe forces"),
 }
 # quantities that share another's format
 ALIASES: dict = {}
@@ -68,6 +82,7 @@ CONSTANTS = {"L": "l", "k1": None, "c1": None, "c1a": None, "c2": None, "phi_s":
              "eps": None, "topo_K": None, "topo_C": None,
              "floor_K": None, "floor_C": None, "floor_kf": None, "mu": None, "inv_mass": None, "g": None,
              "coll_h": None, "coll_K": None, "coll_C": None, "coll_kf": None,
+             "probe_R": None, "probe_R2": None, "probe_K": None, "probe_C": None, "probe_kf": None, "inv_k": None,
              "load": "facc"}
 
 # every quantity and constant name as a checked constant: kernels write Q.l2, and a misspelt name is an
@@ -177,7 +192,7 @@ def derive(peaks: dict, preset: Preset, overrides: dict | None = None, increment
             fs.shapes[q] = SQ(2, ws - 2)
         elif cls == "fixed_operand":
             fs.shapes[q] = SQ(2, wo - 2)
-        elif cls == "accumulator":
+        elif cls in ("accumulator", "probe_force"):
             pass                                    # below: derived from the element force format
         else:
             fs.shapes[q] = fit(peak, wo, preset.headroom_bits)
@@ -185,6 +200,10 @@ def derive(peaks: dict, preset: Preset, overrides: dict | None = None, increment
         fe = fs.shapes.get("fe") or fit(peaks["facc"], wo, preset.headroom_bits)
         i_acc = max(fe.i, _int_bits(peaks["facc"], preset.headroom_bits)) + preset.acc_guard
         fs.shapes["facc"] = SQ(i_acc, fe.f)
+    for q, guard in (("pfe", 0), ("fprobe", preset.acc_guard)):
+        if q in peaks:
+            f = fs.shapes["fe"].f if "fe" in fs.shapes else wo - _int_bits(peaks[q], preset.headroom_bits)
+            fs.shapes[q] = SQ(_int_bits(peaks[q], preset.headroom_bits) + guard, f)
     for q, like in CONSTANTS.items():
         if q not in peaks:
             continue

@@ -57,5 +57,8 @@ class HardwareUnits:
     def to_velocity(self, u):
         return np.asarray(u, float) * self.ell / self.dt
 
+    def to_force(self, f):
+        return np.asarray(f, float) * self.m_ref * self.ell / self.dt ** 2
+
     def to_dict(self) -> dict:
         return {"ell_m": self.ell, "dt_s": self.dt, "m_ref_kg": self.m_ref}

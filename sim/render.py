@@ -5,7 +5,8 @@
 
 Elements are drawn as line segments coloured by object, 2D cells are lightly filled, pinned nodes are
 small black markers and the floor (when the run has one) is a grey line in 2D or a translucent plane in
-3D. All panels / animation frames share one set of axis limits with equal aspect.
+3D. A haptic run (`rheo haptic`) also shows the probe (a disc, or a sphere's outline) and the force on it
+as an arrow with a readout. All panels / animation frames share one set of axis limits with equal aspect.
 
 Errors meant to become one-line CLI messages: sim/runfile.py's RunFileMissing / RunFileError for a missing
 or malformed run file (missing keys, inconsistent shapes), ValueError for bad frame indices or an unsupported
@@ -79,6 +80,10 @@ def _limits(run: dict, idx) -> tuple[np.ndarray, np.ndarray]:
     if len(pts) == 0:
         raise BadArgument("the selected frames have no finite node coordinates")
     lo, hi = pts.min(axis=0), pts.max(axis=0)
+    if "probe" in run:
+        pb = run["probe"]
+        ps = np.concatenate([pb["p0"][None, :], pb["p"]])
+        lo, hi = np.minimum(lo, ps.min(0) - pb["radius"]), np.maximum(hi, ps.max(0) + pb["radius"])
     fh = run["floor_height"]
     if np.isfinite(fh):
         lo[D - 1], hi[D - 1] = min(lo[D - 1], fh), max(hi[D - 1], fh)
@@ -126,6 +131,7 @@ class _Painter:
         self.cell_colours = colours[run["cell_object"]] if len(cells) else np.zeros((0, 4))
         self.node_colours = colours[run["node_object"]]
         self.lw = _line_width(len(edges))
+        self.probe = ProbePainter(run["probe"], self.D, lo, hi) if "probe" in run else None
         # 3D: draw the shaded surface of each object (its boundary triangles), not every interior element
         self.surface = None
         if self.D == 3 and len(cells):
@@ -210,6 +216,8 @@ class _Painter:
                                            color=self.colours[0])
             (art["pinned"],) = ax.plot(x[pinned, 0], x[pinned, 1], x[pinned, 2], ls="none", marker="o",
                                        ms=3, color="k")
+        if self.probe is not None:
+            art["probe"] = self.probe.draw(ax, *self.probe.at(run["t"][f]))
         return art
 
     def update(self, art: dict, f: int):
@@ -231,6 +239,73 @@ class _Painter:
             art["pinned"].set_data(x[p, 0], x[p, 1])
         else:
             art["pinned"].set_data_3d(x[p, 0], x[p, 1], x[p, 2])
+        if "probe" in art:
+            self.probe.update(art["probe"], *self.probe.at(run["t"][f]))
+
+
+class ProbePainter:
+    """The probe of a haptic run (or of `rheo play`): a disc in 2D, a sphere's three great circles in 3D,
+    the force on it as an arrow from its centre (length: ARROW_FRACTION of the picture per the run's peak
+    force) and a readout. `at(t)`: the probe's (position, force, contacts) in the frame at time t."""
+
+    ARROW_FRACTION = 0.25
+
+    def __init__(self, probe: dict, D: int, lo, hi, peak_force: float | None = None):
+        self.pb, self.D = probe, D
+        peak = peak_force if peak_force is not None else (
+            float(np.linalg.norm(probe["force"], axis=1).max()) if len(probe["force"]) else 0.0)
+        self.scale = self.ARROW_FRACTION * float(np.max(np.asarray(hi) - np.asarray(lo))) / max(peak, 1e-300)
+
+    def at(self, t: float):
+        pb = self.pb
+        s = int(np.searchsorted(pb["t"], t - 1e-12 * max(1.0, abs(t))))
+        if len(pb["t"]) == 0 or s >= len(pb["t"]) or abs(pb["t"][s] - t) > 1e-9 * max(1.0, abs(t)):
+            return pb["p0"], np.zeros(self.D), 0          # before the first sample: at rest, no force
+        return pb["p"][s], pb["force"][s], int(pb["contacts"][s])
+
+    def _circles(self, p):
+        a = np.linspace(0.0, 2.0 * np.pi, 49)
+        c, s_ = np.cos(a), np.sin(a)
+        R = self.pb["radius"]
+        if self.D == 2:
+            return [np.stack([p[0] + R * c, p[1] + R * s_], 1)]
+        z = np.zeros_like(a)
+        return [p + R * np.stack(v, 1) for v in ((c, s_, z), (c, z, s_), (z, c, s_))]
+
+    @staticmethod
+    def readout(force, contacts) -> str:
+        return f"probe force {np.linalg.norm(force):.3g} N, {contacts} node{'s' if contacts != 1 else ''}"
+
+    def draw(self, ax, p, force, contacts) -> dict:
+        from matplotlib.patches import Circle
+        art = {}
+        tip = p + self.scale * np.asarray(force)
+        if self.D == 2:
+            art["disc"] = ax.add_patch(Circle(p, self.pb["radius"], facecolor=(0.85, 0.2, 0.1, 0.25),
+                                              edgecolor=(0.7, 0.1, 0.0), lw=1.2, zorder=4))
+            art["arrow"] = ax.annotate("", xy=tip, xytext=p, zorder=5, annotation_clip=False,
+                                       arrowprops=dict(arrowstyle="-|>", color=(0.7, 0.1, 0.0), lw=1.8))
+            art["text"] = ax.text(0.02, 0.97, self.readout(force, contacts), transform=ax.transAxes, va="top",
+                                  fontsize="small", color=(0.6, 0.1, 0.0), zorder=6)
+        else:
+            art["circles"] = [ax.plot(*c.T, color=(0.7, 0.1, 0.0), lw=1.0)[0] for c in self._circles(p)]
+            (art["arrow3"],) = ax.plot(*np.stack([p, tip], 1), color=(0.7, 0.1, 0.0), lw=2.0)
+            (art["tip3"],) = ax.plot(*tip[:, None], marker="o", ms=3, color=(0.7, 0.1, 0.0))
+            art["text"] = ax.text2D(0.02, 0.97, self.readout(force, contacts), transform=ax.transAxes,
+                                    va="top", fontsize="small", color=(0.6, 0.1, 0.0))
+        return art
+
+    def update(self, art: dict, p, force, contacts) -> None:
+        tip = p + self.scale * np.asarray(force)
+        if self.D == 2:
+            art["disc"].center = tuple(p)
+            art["arrow"].xy, art["arrow"].xyann = tuple(tip), tuple(p)
+        else:
+            for line, c in zip(art["circles"], self._circles(p)):
+                line.set_data_3d(*c.T)
+            art["arrow3"].set_data_3d(*np.stack([p, tip], 1))
+            art["tip3"].set_data_3d(*tip[:, None])
+        art["text"].set_text(self.readout(force, contacts))
 
 
 # ----------------------------------------------------------------------------------------------------

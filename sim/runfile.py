@@ -2,7 +2,10 @@
 
 Keys: t (F,), x and v (F, N, D) in SI units, a (F, E), edges (E, 2), cells (C, D + 1), node_object (N,),
 cell_object (C,), object_names, pinned (N,), mass (N,), dim, dt, scene, backend, floor_height (NaN
-without a floor). Fixed-point and hardware backends add x_raw, v_raw, a_raw and saturations per frame, and
+without a floor). A haptic run (`rheo haptic`) records a frame every few device samples and adds, per
+sample, probe_t (S,) (the time at the sample's end), probe_p (S, D) (the position held), probe_force
+(S, D) (the force on the probe in the sample's last step, N) and probe_contacts (S,), and probe_radius,
+probe_p0 (the initial position) and probe_k (steps per sample); the fixed backend also probe_force_raw. Fixed-point and hardware backends add x_raw, v_raw, a_raw and saturations per frame, and
 preset, formats, stagnation, saturation_names, saturation_counts, constant_saturations and units; the
 simulated cores also cycles ((runs, 2): steps and cycles of each run) and cycles_per_step.
 """
@@ -27,6 +30,7 @@ from golden.system import Run, System
 DRAWING_KEYS = ("t", "x", "edges", "cells", "node_object", "pinned")     # what a picture needs
 _READ_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error)
 _OPTIONAL_KEYS = ("v", "a", "cell_object", "object_names", "dim", "scene", "floor_height")
+PROBE_KEYS = ("probe_t", "probe_p", "probe_force", "probe_contacts", "probe_radius", "probe_p0")
 
 
 class RunFileError(RheoError, ValueError):
@@ -46,6 +50,16 @@ def run_arrays(system: System, run: Run, backend: str) -> dict:
         dim=np.int64(system.dim), dt=np.float64(system.dt), scene=np.str_(system.name), backend=np.str_(backend),
         floor_height=np.float64(system.floor.height if system.floor is not None else np.nan),
     )
+
+
+def haptic_arrays(system: System, arrays: dict, backend: str, extra: dict | None = None) -> dict:
+    """The run file of a haptic run (sim/haptic.py run_trajectory's arrays): the frames and the mesh as
+    run_arrays, plus the probe per device sample."""
+    raw = {k: arrays[k] for k in ("x_raw", "v_raw", "a_raw", "saturations") if k in arrays}
+    run = Run(arrays["t"], arrays["x"], arrays["v"], arrays["a"], float(arrays["wall_seconds"]), raw, dict(extra or {}))
+    out = run_arrays(system, run, backend)
+    out.update({k: v for k, v in arrays.items() if k.startswith("probe_")})
+    return out
 
 
 def save(path, arrays: dict) -> Path:
@@ -244,7 +258,7 @@ def load_run(npz_path, required=DRAWING_KEYS) -> dict:
             files = set(f.files)
             missing = [k for k in required if k not in files]
             if not missing:
-                for k in (set(required) | set(_OPTIONAL_KEYS)) & files:
+                for k in (set(required) | set(_OPTIONAL_KEYS) | set(PROBE_KEYS)) & files:
                     try:
                         data[k] = f[k]
                     except ValueError:
@@ -344,4 +358,25 @@ def _check_run(path, d: dict) -> dict:
     out["scene"] = str(d["scene"]) if "scene" in d else ""
     fh = np.asarray(d.get("floor_height", np.nan), dtype=np.float64).reshape(-1)
     out["floor_height"] = float(fh[0]) if fh.size else float("nan")
+    if all(k in d for k in PROBE_KEYS):
+        out["probe"] = _check_probe(path, d, D)
     return out
+
+
+def _check_probe(path, d: dict, D: int) -> dict:
+    """The probe of a haptic run: per sample t (S,), p and force (S, D), contacts (S,); radius, p0 (D,)."""
+    t = np.asarray(d["probe_t"], np.float64).reshape(-1)
+    S = len(t)
+    p = np.asarray(d["probe_p"], np.float64)
+    force = np.asarray(d["probe_force"], np.float64)
+    contacts = np.asarray(d["probe_contacts"]).reshape(-1)
+    for name, arr in (("probe_p", p), ("probe_force", force)):
+        if arr.shape != (S, D):
+            raise _bad(path, f"{name} must have shape ({S}, {D}), got {arr.shape}")
+    if contacts.shape != (S,):
+        raise _bad(path, f"probe_contacts has {contacts.size} entries for {S} samples")
+    p0 = np.asarray(d["probe_p0"], np.float64).reshape(-1)
+    if p0.shape != (D,):
+        raise _bad(path, f"probe_p0 must have {D} entries, got {p0.size}")
+    radius = float(np.asarray(d["probe_radius"], np.float64).reshape(-1)[0])
+    return dict(t=t, p=p, force=force, contacts=contacts.astype(np.int64), p0=p0, radius=radius)

@@ -307,6 +307,19 @@ def _name_not_a_string(d, tmp):
     d["name"] = 7
 
 
+def _probe(**change):
+    """A [probe] table on the base scene with one change (None removes a key)."""
+    def mutate(d, tmp):
+        pb = {"radius": 0.004, "K": 500.0, "C": 1.0, "mu": 0.3, "position": [0.005, 0.015], "depth": 0.002}
+        for k, v in change.items():
+            if v is None:
+                pb.pop(k)
+            else:
+                pb[k] = v
+        d["probe"] = pb
+    return mutate
+
+
 # (id, mutate, words that must all appear in the error line)
 CASES = [
     ("name-is-a-path", _name_is_a_path, ["'name'", "plain name", "RUN"]),
@@ -359,6 +372,20 @@ CASES = [
     ("duplicate-object-names", _duplicate_object_names, ["[objects.1]", "unique", "'tri'"]),
     ("3d-mesh-in-2d-scene", _mesh_wrong_dim, ["box", "dim = 2"]),
     ("floor-without-K", _floor_without_k, ["[world.floor]", "missing", "'K'"]),
+    ("probe-without-radius", _probe(radius=None), ["[probe]", "missing", "'radius'"]),
+    ("probe-without-position", _probe(position=None), ["[probe]", "missing", "'position'"]),
+    ("probe-zero-radius", _probe(radius=0.0), ["[probe]", "'radius'", "> 0", "got 0"]),
+    ("probe-negative-K", _probe(K=-5.0), ["[probe]", "'K'", "> 0", "-5"]),
+    ("probe-negative-C", _probe(C=-1.0), ["[probe]", "'C'", ">= 0"]),
+    ("probe-nan-mu", _probe(mu=math.nan), ["[probe]", "'mu'", "finite"]),
+    ("probe-zero-k_f", _probe(k_f=0.0), ["[probe]", "'k_f'", "> 0"]),
+    ("probe-position-3d-in-2d", _probe(position=[0.0, 0.0, 0.0]), ["[probe]", "'position'", "list of 2 numbers"]),
+    ("probe-steps-per-sample-0", _probe(steps_per_sample=0), ["[probe]", "'steps_per_sample'", ">= 1"]),
+    ("probe-steps-per-sample-float", _probe(steps_per_sample=10.0), ["[probe]", "'steps_per_sample'", "integer"]),
+    ("probe-negative-depth", _probe(depth=-0.001), ["[probe]", "'depth'", ">= 0"]),
+    ("probe-zero-poke_time", _probe(poke_time=0.0), ["[probe]", "'poke_time'", "> 0"]),
+    ("probe-unknown-key", _probe(stiffness=1.0), ["[probe]", "unknown key", "'stiffness'"]),
+    ("probe-not-a-table", lambda d, tmp: d.update(probe=[1, 2]), ["[probe]", "must be a table"]),
 ]
 
 
@@ -406,6 +433,21 @@ def test_base_scene_is_valid(tmp_path):
     with np.load(out) as f:
         assert f["x"].shape == (3, 3, 2)
         assert str(f["scene"]) == "bad-input-base"
+
+
+def test_base_scene_with_a_probe_is_valid(tmp_path):
+    """Control for the [probe] cases: the base scene with a valid probe runs (the probe follows its design
+    poke), and so it does through `rheo haptic`."""
+    d = base_scene()
+    _probe()(d, tmp_path)
+    scene = tmp_path / "scene.toml"
+    scene.write_text(dumps(d))
+    out = tmp_path / "r.npz"
+    proc = rheo("simulate", scene, "--steps", 2, "--out", out)
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    (tmp_path / "t.csv").write_text("dx,dy\n0,0\n0,-0.0001\n")
+    proc = rheo("haptic", scene, "--trajectory", tmp_path / "t.csv", "--out", tmp_path / "h.npz")
+    assert proc.returncode == 0 and "2 device samples" in proc.stdout, proc.stderr
 
 
 def test_readable_mesh_file_is_valid(tmp_path):

@@ -217,6 +217,36 @@ def test_every_builtin_scene_runs_below_its_predicted_limit():
         assert p["margin"] > 1, (name, p["dt_pred"], p["limiting"])
 
 
+def test_probe_contact_enters_the_prediction_like_a_floor_contact(tmp_path):
+    """A stiff probe (K = 1e5 N/m) pressing a viscoelastic block slowly (its design poke): the prediction is
+    limited by the probe, stable, and at least half the measured limit; without the probe's terms it would
+    predict a dt the scene does not survive."""
+    system = scene_from(tmp_path, """
+dim = 2
+[integrator]
+dt = 1e-4
+duration = 0.1
+[[objects]]
+mesh = { type = "rectangle", size = [0.04, 0.02], divisions = [8, 4] }
+pinned = { box = [[-0.001, -0.001], [0.041, 0.001]] }
+material = { preset = "viscoelastic", node_mass = 1e-3 }
+[probe]
+radius = 0.008
+K = 1e5
+C = 0.5
+position = [0.02, 0.0285]
+depth = 0.008
+poke_time = 0.2
+""")
+    p = predict(system)
+    assert "probe" in p["limiting"] and p["parts"]["contact"] == "probe", p["limiting"]
+    r = measure(system)
+    assert p["dt_pred"] <= r["lo"], (p["dt_pred"], r["lo"], r["hi"])
+    assert p["dt_pred"] >= 0.5 * r["hi"], (p["dt_pred"], r["lo"], r["hi"])
+    blind = predict(dataclasses.replace(system, probe=None))["dt_pred"]
+    assert blind > r["hi"], (blind, r["hi"])
+
+
 def test_prediction_is_fast_for_1e5_elements(tmp_path):
     system = scene_from(tmp_path, """
 dim = 2

@@ -9,10 +9,10 @@ import os
 import signal
 import sys
 
-from . import bench, export, report, run, scenes, show, simulate, stability, synth, verilog
+from . import bench, export, haptic, play, plot_force, report, run, scenes, show, simulate, stability, synth, verilog
 from .common import UsageError
 
-COMMANDS = (scenes, simulate, verilog, synth, show, export, bench, stability, report, run)
+COMMANDS = (scenes, simulate, haptic, play, verilog, synth, show, plot_force, export, bench, stability, report, run)
 
 __all__ = ["COMMANDS", "UsageError", "build_parser", "error_line", "main"]
 

@@ -1,5 +1,6 @@
 """`rheo bench --backend golden|cpu|fixed|fpga`: steps per second on generated squares or a scene, every
-figure measured in the same run as the cpu backend it is compared with."""
+figure measured in the same run as the cpu backend it is compared with; `--haptic --scene poke-...`: the
+haptic loop's time per device sample (sim/hapticbench.py)."""
 from __future__ import annotations
 
 import json
@@ -27,6 +28,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--fmax-mhz", type=positive_float,
                         help="fpga: clock to model with, instead of placing and routing the core (minutes to an hour)")
     parser.add_argument("--device", default="ecp5-85k", help="fpga: device for place and route (default ecp5-85k)")
+    parser.add_argument("--haptic", action="store_true",
+                        help="the haptic loop of a --scene with a [probe]: time per device sample of --backend "
+                             "(median, 99.9th percentile) and the golden and bit-true loop rates, same run")
+    parser.add_argument("--samples", type=positive_int, default=10_000,
+                        help="--haptic: device samples timed one by one (default 10000)")
 
 
 def run(args) -> int:
@@ -48,6 +54,8 @@ def run(args) -> int:
     scene = load_system(args.scene) if args.scene else None
     if scene is not None:
         check_backend_fits(scene, args.backend)
+    if args.haptic:
+        return _haptic(args, scene)
     fpga = {}
     if args.backend == "fpga":
         fpga = dict(preset=args.preset or "narrow", lanes=args.lanes, node_lanes=args.node_lanes,
@@ -64,6 +72,34 @@ def run(args) -> int:
         print(f"{'elements':>9} {'nodes':>8} {'steps/s':>10} {'element-updates/s':>18}")
         for r in rows:
             print(f"{r['elements']:9d} {r['nodes']:8d} {r['steps_per_s']:10.1f} {r['element_updates_per_s']:18.3e}")
+    return 0
+
+
+HAPTIC_BACKENDS = ("golden", "cpu", "fixed")
+
+
+def _haptic(args, scene) -> int:
+    from sim.hapticbench import haptic_rates
+    if scene is None:
+        raise UsageError("--haptic needs --scene: a scene with a [probe] table (e.g. poke-2d-1000-elements)")
+    if scene.probe is None:
+        raise UsageError(f"scene '{scene.name}' has no [probe] table: --haptic pokes it")
+    if args.backend not in HAPTIC_BACKENDS:
+        raise UsageError(f"--haptic measures {', '.join(HAPTIC_BACKENDS)} (the FPGA's probe port comes with the "
+                         f"streaming core), not '{args.backend}'")
+    if args.sizes or args.fmax_mhz is not None or args.lanes != 1 or args.node_lanes != 1:
+        raise UsageError("--haptic takes --scene, --backend, --samples, --seconds and --preset")
+    r = haptic_rates(scene, args.backend, args.samples, args.seconds, args.preset or "wide")
+    if args.json:
+        print(json.dumps({"backend": args.backend, "haptic": True, "results": [r]}, indent=2))
+        return 0
+    print(f"{r['scene']}: {r['elements']} elements, {r['nodes']} nodes, k = {r['k']} steps of {r['dt']:g} s per "
+          f"device sample ({r['device_rate_hz']:.0f} Hz device, {r['device_period_us']:.0f} us period)")
+    print(f"  {r['backend']}: {r['samples']} samples, median {r['median_us']:.1f} us, 99th percentile "
+          f"{r['p99_us']:.1f} us, 99.9th {r['p999_us']:.1f} us, max {r['max_us']:.1f} us; {r['late_samples']} "
+          f"late; {'meets' if r['meets_device_rate'] else 'misses'} the device rate at the 99.9th percentile")
+    print(f"  same run: golden {r['golden_samples_per_s']:.1f} samples/s, bit-true ({r['fixed_preset']}) "
+          f"{r['fixed_samples_per_s']:.1f} samples/s")
     return 0
 
 
