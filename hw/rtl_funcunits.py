@@ -155,6 +155,8 @@ class RsqrtUnit(wiring.Component):
             raise ValueError(f"RsqrtUnit: seed error {model.seed_relative_error():g} too large for the "
                              f"fixed internal formats")
         self.latency = 7 + (3 + 3 * PRODUCT_LATENCY) * model.newton_steps
+        # its memories, known at construction (name, depth, width): the seed ROM
+        self.memories = [{"name": "seed_rom", "depth": len(model.seed_table), "width": model.Y + 2}]
         out = model.out_shape
         super().__init__({
             "i": In(stream.Signature(_raw_shape(model.in_shape), always_ready=True)),
@@ -316,6 +318,11 @@ class InverseTableUnit(wiring.Component):
         self.output_fields = tuple(f"out{k}" for k in range(n))
         fields = {f: _raw_shape(s) for f, s in zip(self.output_fields, model.out_shapes)}
         fields.update({"below": 1, "above": 1, "saturations": unsigned(_bits(n))})
+        # its memories, known at construction (name, depth, width): one table ROM per output
+        self.memories = []
+        for k, (tab, clip, shape) in enumerate(zip(model.tabs, model.clips, model.out_shapes)):
+            layout, init = self._rom_layout(tab, clip, shape)
+            self.memories.append({"name": f"rom_{k}", "depth": len(init), "width": layout.size})
         super().__init__({
             "i": In(stream.Signature(_raw_shape(model.in_shape), always_ready=True)),
             "o": Out(stream.Signature(data.StructLayout(fields), always_ready=True)),

@@ -33,6 +33,8 @@ from hw.fixed import SQ, UQ, Saturations, shift_round
 from hw.funcunits import InverseTable, Rsqrt
 from hw.rtl_funcunits import InverseTableUnit, RsqrtUnit
 
+pytestmark = pytest.mark.hdl      # `make test-fast` leaves these out
+
 
 # ================================================================================================ harness
 
@@ -277,7 +279,7 @@ SCENE = "press-2d-rheological"
 
 @pytest.fixture(scope="module")
 def scene_units():
-    """{preset: {name: model}} for press-2d-rheological: the function units `hw.bittrue.BitTrue(sys,
+    """{preset: {name: model}} for press-2d-rheological: the function units `hw.bittrue.BitTrue(system,
     preset)` builds (formats from a full range analysis, as `rheo simulate --backend fixed`; cached per
     session in tests/conftest.py), identical configurations (inv_l and tinv) kept once."""
     from conftest import bittrue

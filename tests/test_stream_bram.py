@@ -13,6 +13,8 @@ import pytest
 from hw.stream.bram import BlockRam, plan_blocks
 from stream_helpers import run_amaranth, run_verilog
 
+pytestmark = pytest.mark.hdl      # Amaranth's simulator or HDL simulators: `make test-fast` leaves these out
+
 INPUTS = ["w_addr", "w_data", "w_en", "r_addr"]
 
 

@@ -22,7 +22,9 @@ from hw.stream import build_core, resolve_core
 from hw.stream.config import NotStreamable
 from sim.hwsim import AmaranthCore
 
-from conftest import bittrue, system
+from conftest import bittrue, scene_system
+
+pytestmark = pytest.mark.hdl      # Amaranth's simulator or HDL simulators: `make test-fast` leaves these out
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -72,20 +74,20 @@ def test_lanes_and_the_edge_of_a_load_window():
     the next period, so their own step number must decide, node by node."""
     bt = bittrue("press-2d-rheological", "narrow")
     first, end = load_window(bt.params, 0)
-    assert end < bt.sys.n_steps
+    assert end < bt.system.n_steps
     _, core = run_core(bt, 2, 3, end - 2, [1, 1, 2])
     assert core.cfg.n_nodes % 3 != 0
 
 
 def test_saturation_counts_match_in_a_scene_built_to_saturate(tmp_path):
     """Formats sized for a gentle pull, then a 100x blow (as tests/test_hw_core.py): the same counts."""
-    from golden.scene import compile_scene, load_scene
+    from golden.scene import load_scene
     from hw.bittrue import BitTrue
     scenes = ROOT / "tests" / "scenes"
     (tmp_path / "hard.toml").write_text((scenes / "pull-chain.toml").read_text().replace(
         "force = [0.05, 0.0]", "force = [5.0, 0.0]"))
-    gentle = compile_scene(load_scene(str(scenes / "pull-chain.toml")))
-    hard = compile_scene(load_scene(str(tmp_path / "hard.toml")))
+    gentle = load_scene(str(scenes / "pull-chain.toml"))
+    hard = load_scene(str(tmp_path / "hard.toml"))
     bt = BitTrue(hard, "narrow", formats=BitTrue(gentle, "narrow").formats)
     run_core(bt, 1, 1, 0, [2, 2, 4])
     assert bt.sat.total > 0
@@ -94,12 +96,12 @@ def test_saturation_counts_match_in_a_scene_built_to_saturate(tmp_path):
 def test_collision_scenes_are_refused_with_a_message():
     from hw.datapath import Params
     from hw.units import HardwareUnits
-    sys_ = system("friction-2d-mu03")
-    params = Params.of(sys_, HardwareUnits.of(sys_))
+    system = scene_system("friction-2d-mu03")
+    params = Params.of(system, HardwareUnits.of(system))
     with pytest.raises(NotStreamable, match="collisions .* --core phased"):
         resolve_core(params, "stream")
     assert resolve_core(params, "auto") == "phased"
-    assert resolve_core(Params.of(system("press-2d-plastic"), HardwareUnits.of(system("press-2d-plastic"))), "auto") == "stream"
+    assert resolve_core(Params.of(scene_system("press-2d-plastic"), HardwareUnits.of(scene_system("press-2d-plastic"))), "auto") == "stream"
     r = subprocess.run([sys.executable, "-m", "sim.cli", "verilog", "friction-2d-mu03", "--core", "stream", "--out",
                         "unused"], cwd=ROOT, capture_output=True, text=True)
     assert r.returncode == 2

@@ -21,11 +21,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from golden.scene import builtin_names, compile_scene, load_scene
+from golden.scene import builtin_names, load_scene
 from hw.bittrue import BitTrue
 from sim.hdlsim import emit_core, run_job
 
-from conftest import bittrue, system
+from conftest import bittrue, scene_system
+
+pytestmark = pytest.mark.hdl      # Amaranth's simulator or HDL simulators: `make test-fast` leaves these out
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -55,7 +57,7 @@ def check(bt, simulator, start, frames, reset_after=0, lanes=1, node_lanes=1, ra
         for _ in range(n):
             bt.step(st)
         assert step == st.step
-        for k in range(bt.sys.dim):
+        for k in range(bt.system.dim):
             assert np.array_equal(X[k], st.X[k]), f"{simulator}: x{k} differs at step {st.step}"
             assert np.array_equal(U[k], st.U[k]), f"{simulator}: u{k} differs at step {st.step}"
         assert np.array_equal(A, st.A), f"{simulator}: a differs at step {st.step}"
@@ -67,13 +69,13 @@ def check(bt, simulator, start, frames, reset_after=0, lanes=1, node_lanes=1, ra
 def _scene(tmp_path, name, text):
     p = tmp_path / f"{name}.toml"
     p.write_text(text)
-    return compile_scene(load_scene(str(p)))
+    return load_scene(str(p))
 
 
 def test_dp16kd_variant_of_a_saturating_scene_on_icarus(tmp_path):
     """DP16KD instances (36-, 18- and 9-bit blocks) on the model: bit for bit, saturations counted alike."""
     scenes = ROOT / "tests" / "scenes"
-    gentle = compile_scene(load_scene(str(scenes / "pull-chain.toml")))
+    gentle = load_scene(str(scenes / "pull-chain.toml"))
     hard = _scene(tmp_path, "hard", (scenes / "pull-chain.toml").read_text().replace(
         "force = [0.05, 0.0]", "force = [5.0, 0.0]"))
     bt = BitTrue(hard, "narrow", formats=BitTrue(gentle, "narrow").formats)
@@ -117,8 +119,8 @@ end = 0.01
 
 VERILATOR_SCENES = [("gravity-2d-nonlinear", "narrow", 2, 2, 3000), ("press-3d-rheological", "medium", 3, 2, 2000)]
 if os.environ.get("RHEO_STREAM_ALL"):
-    VERILATOR_SCENES = [(n, preset, 2, 2, min(system(n).n_steps // 3, 3000)) for n in builtin_names()
-                        if system(n).collision is None for preset in ("narrow", "medium")]
+    VERILATOR_SCENES = [(n, preset, 2, 2, min(scene_system(n).n_steps // 3, 3000)) for n in builtin_names()
+                        if scene_system(n).collision is None for preset in ("narrow", "medium")]
 
 
 @pytest.mark.parametrize("name,preset,P,Q,start", VERILATOR_SCENES)

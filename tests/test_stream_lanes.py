@@ -27,6 +27,8 @@ from hw.stream.pair import PairLane
 from conftest import bittrue
 from test_stream_units import sd, signed
 
+pytestmark = pytest.mark.hdl      # Amaranth's simulator or HDL simulators: `make test-fast` leaves these out
+
 P, Q, BASE = 2, 2, 5
 
 

@@ -24,7 +24,7 @@ from golden.scene import builtin_names
 from hw.stream.order import stream_order
 from hw.stream.schedule import BandwidthError, Latencies, build_schedule
 
-from conftest import system
+from conftest import scene_system
 
 MEM, RMW = 2, 2          # block RAM read latency; a force ring word is written RMW cycles after its read
 
@@ -166,14 +166,14 @@ def test_random_meshes(seed):
     check(order, P, Q, LATENCIES[seed % len(LATENCIES)])
 
 
-SCENES = [n for n in builtin_names() if system(n).collision is None]
+SCENES = [n for n in builtin_names() if scene_system(n).collision is None]
 
 
 @pytest.mark.parametrize("name", SCENES)
 def test_builtin_scenes(name):
-    sys_ = system(name)
-    pairs = sys_.topology.pairs if sys_.topology is not None else None
-    order = stream_order(sys_.n_nodes, sys_.edges, pairs)
+    system = scene_system(name)
+    pairs = system.topology.pairs if system.topology is not None else None
+    order = stream_order(system.n_nodes, system.edges, pairs)
     for P, Q in ((1, 1), (2, 2), (3, 1)):
         check(order, P, Q, LATENCIES[0])
 
@@ -181,17 +181,17 @@ def test_builtin_scenes(name):
 @pytest.mark.parametrize("Q", [2, 3])
 def test_benchmark_square(Q):
     from sim.bench import square_system
-    sys_ = square_system(10_000)
-    order = stream_order(sys_.n_nodes, sys_.edges)
+    system = square_system(10_000)
+    order = stream_order(system.n_nodes, system.edges)
     assert order.bandwidth == 87                       # reverse Cuthill-McKee (the review's figure)
     sch = check(order, 6, Q, Latencies(element=76, element_state=68, node=16), steps=2)
-    assert sch.period <= 1.05 * math.ceil(sys_.n_elements / 6)
+    assert sch.period <= 1.05 * math.ceil(system.n_elements / 6)
 
 
 def test_bandwidth_beyond_the_window_is_refused():
     from sim.bench import square_system
-    sys_ = square_system(10_000)
-    order = stream_order(sys_.n_nodes, sys_.edges)
+    system = square_system(10_000)
+    order = stream_order(system.n_nodes, system.edges)
     with pytest.raises(BandwidthError, match=r"bandwidth 87 .*largest window .* 16 groups of 2 nodes \(32 nodes\)"):
         build_schedule(order, 6, 2, LATENCIES[0], max_window_groups=16)
     assert issubclass(BandwidthError, ValueError)
@@ -199,8 +199,8 @@ def test_bandwidth_beyond_the_window_is_refused():
 
 def test_replay_catches_a_broken_schedule():
     """The checker itself: a fill one cycle late, a retirement one cycle early are caught."""
-    sys_ = system("gravity-2d-nonlinear")
-    order = stream_order(sys_.n_nodes, sys_.edges, sys_.topology.pairs)
+    system = scene_system("gravity-2d-nonlinear")
+    order = stream_order(system.n_nodes, system.edges, system.topology.pairs)
     lat = LATENCIES[0]
     sch = build_schedule(order, 2, 2, lat)
     args = (order, 2, 2, lat, sch.period, sch.window_groups)

@@ -22,6 +22,8 @@ from hw.stream.schedule import Latencies, build_schedule
 from hw.stream.store import NodeStore
 from hw.stream.window import NodeWindow
 
+pytestmark = pytest.mark.hdl      # Amaranth's simulator or HDL simulators: `make test-fast` leaves these out
+
 
 def sd(mapping):
     """A {signal: value} table (Amaranth signals are not hashable: a SignalDict)."""

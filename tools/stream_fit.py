@@ -24,13 +24,13 @@ def inventory(kind, n, P, Q, preset, fmt_cache={}):
     make = square_system if kind == "square" else box_system
     if (kind, preset) not in fmt_cache:
         fmt_cache[(kind, preset)] = BitTrue(make(10_000), preset).formats
-    sys_ = make(n)
-    bt = BitTrue(sys_, preset, formats=fmt_cache[(kind, preset)])
+    system = make(n)
+    bt = BitTrue(system, preset, formats=fmt_cache[(kind, preset)])
     core = StreamCore(StreamConfig.of(bt, P, Q))
     mems = core.memories()
-    blocks = sum(m["dp16kd"] for m in mems) + P * UNIT_ROM_BLOCKS[sys_.dim]
+    blocks = sum(m["dp16kd"] for m in mems) + P * UNIT_ROM_BLOCKS[system.dim]
     sch = core.schedule
-    return dict(elements=sys_.n_elements, nodes=sys_.n_nodes, bandwidth=sch.bandwidth, T=sch.period,
+    return dict(elements=system.n_elements, nodes=system.n_nodes, bandwidth=sch.bandwidth, T=sch.period,
                 C=sch.slots, window_groups=sch.window_groups, dp16kd=blocks,
                 by_kind={k: sum(m["dp16kd"] for m in mems if m["name"].startswith(k))
                          for k in ("store", "window", "ring", "runsum", "el", "nd", "fill", "retire")})

@@ -23,6 +23,8 @@ Modules, one concept each (the first two without Amaranth):
   core.py        StreamCore: the top, composing the components; manifest.py: its manifest
 """
 
+from golden.errors import BadArgument
+
 CORES = ("phased", "stream")
 
 
@@ -31,7 +33,11 @@ def resolve_core(params, core: str = "auto") -> str:
     are not local), which the phased core (hw/core.py) runs; asking for "stream" on such a scene fails
     with NotStreamable."""
     if core not in ("auto",) + CORES:
-        raise ValueError(f"unknown core {core!r} (known: auto, {', '.join(CORES)})")
+        raise BadArgument(f"unknown core {core!r} (known: auto, {', '.join(CORES)})")
+    if params.probe is not None:
+        from .config import PROBE_LATER
+        from ..datapath import NotSupported
+        raise NotSupported(PROBE_LATER)
     if core == "auto":
         return "phased" if params.collision is not None else "stream"
     if core == "stream" and params.collision is not None:

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..datapath import NotSupported
 from ..hostmap import HostMap
 from .kernels import dry_run_element, dry_run_node, dry_run_pair, max_count
 from .nodeword import NodeWord
@@ -19,7 +20,11 @@ from .order import lane_items, stream_order
 from .schedule import Latencies, build_schedule
 
 
-class NotStreamable(ValueError):
+PROBE_LATER = ("no core has a probe port yet (issue 16 item 3); a scene with a [probe] runs on the golden, "
+               "cpu and fixed backends")
+
+
+class NotStreamable(NotSupported):
     """A scene the streaming core does not take (collisions: their pairs are not local)."""
 
 
@@ -48,6 +53,8 @@ class StreamConfig:
         for name, v in (("lanes", lanes), ("node_lanes", node_lanes)):
             if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 64:
                 raise ValueError(f"{name} must be an integer in 1..64, got {v!r}")
+        if params.probe is not None:
+            raise NotSupported(PROBE_LATER)
         if params.collision is not None:
             raise NotStreamable("the streaming core does not take scenes with collisions (collision pairs are "
                                 "not local to the node numbering): use the phased core (--core phased)")

@@ -37,7 +37,7 @@ def manifest(bt, core, specialisation, top: str) -> dict:
     return {
         "top": top,
         "core": "stream",
-        "scene": bt.sys.name,
+        "scene": bt.system.name,
         "preset": bt.formats.preset.name,
         "dim": cfg.dim,
         "nodes": N, "elements": E, "pairs": Pn, "collision_pairs": 0,

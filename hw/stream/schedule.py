@@ -41,6 +41,8 @@ A scene whose window would exceed `max_window_groups` is refused with `Bandwidth
 """
 from __future__ import annotations
 
+from ..datapath import NotSupported
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -56,7 +58,7 @@ MAX_WINDOW_GROUPS = 512      # the largest window: one 512 x 36 DP16KD column pe
 NONE = np.iinfo(np.int64).max // 4
 
 
-class BandwidthError(ValueError):
+class BandwidthError(NotSupported):
     """The scene's node numbering spans more nodes than the largest window holds."""
 
 
