@@ -38,12 +38,7 @@ def run_backend(system: System, backend: str, steps=None, every=None, progress=F
             return simulate(system, steps=steps, every=every, progress=progress)
         if backend == "cpu":
             from sim.cpu import Cpu
-            cpu = Cpu(system)
-            if system.probe is not None and not cpu.takes_probe:
-                from golden.errors import RheoError
-                raise RheoError(f"scene '{system.name}' has a probe, which the cpu backend cannot run yet; "
-                                f"use --backend golden or fixed")
-            return simulate(system, steps=steps, every=every, progress=progress, stepper=cpu)
+            return simulate(system, steps=steps, every=every, progress=progress, stepper=Cpu(system))
         bt = bittrue or bit_true_model(system, preset, steps)
         if backend == "fixed":
             return simulate(system, steps=steps, every=every, progress=progress, stepper=bt)

@@ -6,6 +6,7 @@ mirrors `golden/` term for term, one function per golden function:
     golden/elements.py  solve_convex, phi / psi, element_forces   ->  _newton / _solve, _phi / _psi, _tension
     golden/topology.py  topology_forces, facet_frame, foot_weights ->  _topology, _normal, _foot
     golden/contact.py   Floor.forces, Collision.candidates/forces  ->  _floor, _collisions, _contact
+    golden/probe.py     Probe.forces, design_sample, design_offset ->  _probe, _design_sample, _design_offset
     golden/model.py     Golden.forces, Golden.step                 ->  _elements, _scatter, _extras, _integrate
 
 and is tested against golden (`tests/test_cpu.py`): after 100 steps of every built-in scene and of random
@@ -33,6 +34,10 @@ compare-and-swap of the chunk's step number), its own first, then any left uncla
 runs alone or late takes them all and nothing can deadlock), and starts the next step when every chunk of
 this one is done (spinning, then yielding its core). Contact terms and loads need every node's sum first:
 with them a step is three passes (chunks without integration, `_extras` once, the integration in chunks).
+The haptic probe (MODEL.md 4b) is the last of the extras, as in golden: its held p and pdot, and the nodes it
+touched in the last step with their forces, live in small arrays that `_call` copies from and back into the
+state's ProbeState (whose `record` sums the force on the probe, golden's own code); a probe no host drives
+follows the scene's design poke, moved at each sample's first step inside the compiled run.
 `threads=None` chooses by size (`PARALLEL_MIN_ELEMENTS`, measured with `rheo bench --backend cpu`). The
 first use compiles (a minute or two); `cache=True` keeps the machine code beside this file for later runs.
 """
@@ -86,6 +91,10 @@ Topo = namedtuple("Topo", "on pairs K C eps")
 FloorP = namedtuple("FloorP", "on height K C mu k_f")
 Coll = namedtuple("Coll", "on vertices facets nbr_ptr nbr K C threshold mu k_f")
 Loads = namedtuple("Loads", "ptr nodes force start end")
+# the probe (golden/probe.py Probe; on: the scene has one) and its state (ProbeState's held p and pdot, and the
+# nodes touching it in the last step with their forces: count[0] of them)
+ProbeP = namedtuple("ProbeP", "on radius K C mu k_f k position down depth poke_time")
+ProbeIO = namedtuple("ProbeIO", "p pdot nodes node_forces count")
 Nodes = namedtuple("Nodes", "inv_m_dt free g_dt dt")
 # the counters of a run (int64 words, each on its own cache line): chunks done, a solve that failed, then
 # one claim word per chunk and pass (the number of the step whose chunk was last claimed)
@@ -697,6 +706,70 @@ def _collisions(x, v, cl, out):
                     _contact(x, v, K, C, threshold, mu, k_f, p, fn, out, n, w, vrel, f, e1, e2, r)
 
 
+# ---------------------------------------------------------------- the probe (golden/probe.py)
+
+@_jit(inline="always")
+def _design_offset(pb, t):
+    """Probe.design_offset: the design poke's depth below the initial position at time t."""
+    u = t / pb.poke_time
+    return pb.depth * max(min(2.0 * u, 2.0 * (1.0 - u)), 0.0)
+
+
+@_jit(inline="always")
+def _design_sample(pb, ps, step, dt):
+    """design_sample for a probe no host drives: at the first step of a device sample, hold the design poke's
+    position (Probe.design_position) with pdot = (p - p_prev) / (k dt) (ProbeState.hold)."""
+    if step % pb.k != 0:
+        return
+    off = _design_offset(pb, (step // pb.k) * pb.k * dt)
+    for k in range(len(ps.p)):
+        p = pb.position[k] + off * pb.down[k]
+        ps.pdot[k] = (p - ps.p[k]) / (pb.k * dt)
+        ps.p[k] = p
+
+
+@_jit(inline="always")
+def _probe(x, v, pb, ps, out):
+    """Probe.forces: every node within the radius of p (the box first, then the distance, as golden) gets N n
+    and the friction on its velocity relative to the probe, added to out (N, D); the nodes touching it and
+    their forces, in node order, go to ps (`Cpu._call` hands them to ProbeState.record, which sums the force
+    on the probe)."""
+    D = x.shape[1]
+    R, K, C, mu, k_f = pb.radius, pb.K, pb.C, pb.mu, pb.k_f
+    P, Pdot, nodes, nf = ps.p, ps.pdot, ps.nodes, ps.node_forces
+    sc = np.empty((4, D))
+    r, n, vrel, f = sc[0], sc[1], sc[2], sc[3]
+    m = 0
+    for p in range(x.shape[0]):
+        near = True
+        for k in range(D):
+            r[k] = x[p, k] - P[k]
+            near &= abs(r[k]) < R
+        if not near:
+            continue
+        d2 = _dot(r, r)
+        if not d2 < R * R:
+            continue
+        d = np.sqrt(d2)
+        for k in range(D):
+            n[k] = r[k] / d
+            vrel[k] = v[p, k] - Pdot[k]
+        vn = _dot(vrel, n)
+        N = max(0.0, K * (R - d) - C * vn)
+        for k in range(D):
+            f[k] = N * n[k]
+        if mu > 0.0:
+            for k in range(D):
+                r[k] = vrel[k] - vn * n[k]          # the slip velocity
+            _friction(r, N, mu, k_f, f)
+        for k in range(D):
+            out[p, k] += f[k]
+            nf[m, k] = f[k]
+        nodes[m] = p
+        m += 1
+    ps.count[0] = m
+
+
 # ---------------------------------------------------------------- the step (golden/model.py)
 
 @_jit(inline="always")
@@ -772,9 +845,9 @@ def _integrate(xr, vr, xw, vw, Ft, nd, p0, p1):
 
 
 @_jit(inline="always")
-def _extras(xt, vt, t, tp, fl, cl, ld, Ft):
-    """The rest of Golden.forces, in its order: topology, floor, collisions, loads. Positions, velocities and
-    forces are component-major (D, N), seen as (N, D) by the contact terms."""
+def _extras(xt, vt, t, tp, fl, cl, ld, pb, ps, Ft):
+    """The rest of Golden.forces, in its order: topology, floor, collisions, loads, the probe. Positions,
+    velocities and forces are component-major (D, N), seen as (N, D) by the contact terms."""
     x, v, F = xt.T, vt.T, Ft.T
     if tp.on:
         _topology(x, v, tp, F)
@@ -788,17 +861,20 @@ def _extras(xt, vt, t, tp, fl, cl, ld, Ft):
             for r in range(ptr[q], ptr[q + 1]):
                 for k in range(len(force[q])):
                     F[nodes[r], k] += force[q, k]
+    if pb.on:
+        _probe(x, v, pb, ps, F)
 
 
 @_jit()
-def _worker(w, threads, n_steps, step, t_forces, integrate, X, V, a, el, tp, fl, cl, ld, nd, ch, Ft, wk, sv, sync):
+def _worker(w, threads, n_steps, step, t_forces, integrate, driven, X, V, a, el, tp, fl, cl, ld, pb, ps, nd, ch, Ft,
+            wk, sv, sync):
     """n_steps symplectic Euler steps (Golden.step) from step number `step`; every thread of a run calls this
     (w: which one of `threads`). Step s reads X[s % 2], V[s % 2] and writes the other buffers. Each pass of
     a step starts when every chunk of the passes before is done; a thread then claims chunks, its own share
-    first, and runs each it claims. Without `integrate`: Golden.forces at time t_forces (one step's forces
-    into Ft and wk, nothing moves)."""
+    first, and runs each it claims. A probe no host `driven` follows the design poke. Without `integrate`:
+    Golden.forces at time t_forces (one step's forces into Ft and wk, nothing moves)."""
     C = len(ch.nodes) - 1
-    extras = tp.on or fl.on or cl.on or len(ld.start) > 0
+    extras = tp.on or fl.on or cl.on or len(ld.start) > 0 or pb.on
     split = extras or not integrate             # the node sums before the integration: three passes
     per_step = C + ((1 + C) if extras and integrate else (1 if extras else 0))
     mine = w * C // threads                      # the first chunk of this thread's share
@@ -822,7 +898,9 @@ def _worker(w, threads, n_steps, step, t_forces, integrate, X, V, a, el, tp, fl,
         if extras:
             _wait(sync, first + C, solo)
             if _take(sync, CLAIMS + 8 * C, s, solo):
-                _extras(xr, vr, (step + s) * dt if integrate else t_forces, tp, fl, cl, ld, Ft)
+                if pb.on and integrate and not driven:
+                    _design_sample(pb, ps, step + s, dt)
+                _extras(xr, vr, (step + s) * dt if integrate else t_forces, tp, fl, cl, ld, pb, ps, Ft)
                 _done(sync, solo)
             if integrate:
                 _wait(sync, first + C + 1, solo)
@@ -835,10 +913,12 @@ def _worker(w, threads, n_steps, step, t_forces, integrate, X, V, a, el, tp, fl,
 
 
 @_jit(parallel=True)
-def _run_parallel(threads, n_steps, step, t_forces, integrate, X, V, a, el, tp, fl, cl, ld, nd, ch, Ft, wk, sv, sync):
+def _run_parallel(threads, n_steps, step, t_forces, integrate, driven, X, V, a, el, tp, fl, cl, ld, pb, ps, nd, ch, Ft,
+                  wk, sv, sync):
     """_worker on `threads` threads at once: one parallel region for the whole run."""
     for w in prange(threads):
-        _worker(w, threads, n_steps, step, t_forces, integrate, X, V, a, el, tp, fl, cl, ld, nd, ch, Ft, wk, sv, sync)
+        _worker(w, threads, n_steps, step, t_forces, integrate, driven, X, V, a, el, tp, fl, cl, ld, pb, ps, nd, ch, Ft,
+                wk, sv, sync)
 
 
 # ---------------------------------------------------------------- the stepper
@@ -874,6 +954,8 @@ def _chunks(i: np.ndarray, j: np.ndarray, N: int, C: int):
 
 class Cpu(Stepper):
     """Steps a System in float64 with compiled loops; the same interface as golden.model.Golden."""
+
+    takes_probe = True
 
     def __init__(self, system: System, threads: int | None = None, chunks: int | None = None):
         self.system = system
@@ -932,6 +1014,12 @@ class Cpu(Stepper):
                         np.concatenate(nodes + [np.zeros(0, np.int64)]),
                         np.array([np.asarray(l.force, float) for l in system.loads]).reshape(len(system.loads), D),
                         np.array([float(l.start) for l in system.loads]), np.array([float(l.end) for l in system.loads]))
+        pb = system.probe          # the same types with and without a probe: one compiled worker
+        self.pb = (ProbeP(True, float(pb.radius), float(pb.K), float(pb.C), float(pb.mu), float(pb.k_f), int(pb.k),
+                          np.asarray(pb.position, float).copy(), pb.down, float(pb.depth), float(pb.poke_time))
+                   if pb is not None else ProbeP(False, 0.0, 0.0, 0.0, 0.0, 0.0, 1, np.zeros(D), np.zeros(D), 0.0, 1.0))
+        M = N if pb is not None else 0
+        self._ps = ProbeIO(np.zeros(D), np.zeros(D), np.zeros(M, np.int64), np.zeros((M, D)), np.zeros(1, np.int64))
         self.nd = Nodes(np.where(system.pinned, 0.0, system.dt / system.mass), (~system.pinned).astype(float),
                         np.asarray(system.gravity, float) * system.dt, float(system.dt))
         self._X, self._V = np.zeros((2, D, N)), np.zeros((2, D, N))
@@ -961,8 +1049,12 @@ class Cpu(Stepper):
         self._X[0], self._V[0] = xt, vt
         np.take(st.a, self._copy, out=self._a)
         self._sync[:] = 0
-        args = (int(n), int(st.step), float(t_forces), integrate, self._X, self._V, self._a, self.el, self.tp,
-                self.fl, self.cl, self.ld, self.nd, self.ch, self._Ft, self._wk, self._sv, self._sync)
+        pst, ps = st.probe, self._ps
+        if pst is not None:
+            ps.p[:], ps.pdot[:] = pst.p, pst.pdot
+        args = (int(n), int(st.step), float(t_forces), integrate, pst is not None and pst.driven, self._X, self._V,
+                self._a, self.el, self.tp, self.fl, self.cl, self.ld, self.pb, ps, self.nd, self.ch, self._Ft,
+                self._wk, self._sv, self._sync)
         if self.threads > 1:
             numba.set_num_threads(self.threads)
             _run_parallel(self.threads, *args)
@@ -971,6 +1063,10 @@ class Cpu(Stepper):
         if integrate:
             xt[...], vt[...] = self._X[n % 2], self._V[n % 2]
             st.a[self._owned_elem] = self._a[self._owned]
+        if pst is not None:               # the held inputs (the design poke moves them) and the last step's reading
+            pst.p, pst.pdot = ps.p.copy(), ps.pdot.copy()
+            m = int(ps.count[0])
+            pst.record(ps.nodes[:m].copy(), ps.node_forces[:m].copy())
         if self._sync[FAILED]:
             raise ArithmeticError("damper solve did not converge")
 
@@ -985,6 +1081,17 @@ class Cpu(Stepper):
 
     def step(self, st: State) -> None:
         self.advance(st, 1)
+
+    # the haptic probe, as golden.model.Golden's
+    def hold_probe(self, st: State, p) -> None:
+        st.probe.driven = True
+        st.probe.hold(self.system.probe, p, self.system.dt)
+
+    def probe_reading(self, st: State) -> tuple:
+        return st.probe.force.copy(), st.probe.contacts
+
+    def probe_position(self, st: State):
+        return None if st.probe is None else st.probe.p.copy()
 
     def forces(self, st: State, t: float):
         """Total force (N, D) and the elements' adot at time t (for tests and tools); `flagged` then holds the

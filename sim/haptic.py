@@ -29,7 +29,7 @@ import numpy as np
 from golden.errors import RheoError
 from golden.system import System
 
-HAPTIC_BACKENDS = ("golden", "cpu", "fixed")           # backends that take a probe (the cpu backend: once merged)
+HAPTIC_BACKENDS = ("golden", "cpu", "fixed")           # backends that take a probe
 LATER = {"amaranth": "the core's probe port (issue 16 item 3) is not built yet",
          "icarus": "the core's probe port (issue 16 item 3) is not built yet",
          "verilator": "the core's probe port (issue 16 item 3) is not built yet"}

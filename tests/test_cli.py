@@ -211,3 +211,13 @@ def test_simulate_refuses_a_dt_above_the_stable_limit_unless_forced(tmp_path):
     assert not out.exists()
     one_line_error(rheo("simulate", p, "--force", "--out", out), "diverged")
     assert not out.exists()
+
+
+def test_report_refuses_a_probe_scene_in_one_line(tmp_path):
+    """rheo report runs the scene at 2 dt, 4 dt and dt/16: with a probe each would hold a device sample for k
+    steps of its own dt, another device rate (the cpu backend takes the probe; that is not the reason)."""
+    out = tmp_path / "report"
+    line = one_line_error(rheo("report", "poke-2d-rheological", "--out", out), "poke-2d-rheological", "has a probe",
+                          "k = 10 steps", "another device rate", "rheo haptic")
+    assert "cpu" not in line
+    assert not out.exists()

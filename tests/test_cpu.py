@@ -1,14 +1,20 @@
 """The compiled cpu backend (sim/cpu.py) equals the golden model.
 
-After 100 steps of every built-in scene, and of seeded random scenes (hypothesis: meshes, dimensions,
+After 100 steps of every built-in scene (the poke scenes too), and of seeded random scenes (hypothesis: meshes, dimensions,
 materials with and without a force-dependent damper, gravity, floors with friction, loads, two colliding
 objects), positions agree to 1e-12 of the object size and a to 1e-12, with one thread and with two. The
-random scenes stiffen the damper's law so that its solve and the stops are exercised. The benchmark runs
+random scenes stiffen the damper's law so that its solve and the stops are exercised. The haptic probe
+(MODEL.md 4b): on every [probe] scene through its design poke, the positions, a and the probe's force reading
+after each advance() (calls of 1 to 44 steps, device samples cut inside them and at their ends) agree with
+golden stepped one step at a time, to the same 1e-12 (the force: of its peak), the probe's held p and pdot
+and its contacts exactly; so do a host-driven probe (hold_probe, pressed in, then dragged: friction) and
+Golden.forces. The benchmark runs
 as a figure (`pytest -s` prints it), not as a timed assertion; its C reference loop must agree with the
 cpu backend before it is timed.
 """
 from __future__ import annotations
 
+import functools
 import json
 import subprocess
 import sys
@@ -48,11 +54,11 @@ def _compare(system, steps=STEPS, threads=1, start=0):
     return dx, da, moved
 
 
-@pytest.mark.parametrize("name", [n for n in builtin_names() if scene_system(n).probe is None])  # probe: later
+@pytest.mark.parametrize("name", builtin_names())
 @pytest.mark.parametrize("where", ["start", "middle"])
 def test_every_builtin_scene_equals_golden_after_100_steps(name, where):
     """From the initial state, and from golden's state halfway through the scene (capped at 3000 steps:
-    loads, contacts and creep under way)."""
+    loads, contacts and creep under way; the poke scenes' probe pressed in, on its way back up)."""
     system = scene_system(name)
     start = 0 if where == "start" else min(system.n_steps // 2, 3000)
     dx, da, moved = _compare(system, start=start)
@@ -66,6 +72,154 @@ def test_two_threads_equal_golden(name):
     dx, da, _ = _compare(scene_system(name), threads=2)
     assert dx <= TOL and da <= TOL, f"{name}, 2 threads: x differs by {dx:.3g}, a by {da:.3g}"
 
+
+# ---------------------------------------------------------------------------- the haptic probe (MODEL.md 4b)
+
+PROBE_SCENES = [n for n in builtin_names() if scene_system(n).probe is not None]
+# advance() calls of these sizes in turn (k = 10): device samples start inside a call and at its ends, and
+# one call runs many samples (the reading must be the last step's, the design poke moved inside the call)
+CHUNKS = (7, 10, 13, 25, 1, 44)
+# the poke scenes' probe touches the block from about step 340 (1 mm of air at 30 mm/s); at step 1200 it is
+# 2.6 mm in, still pressing. The slow test runs the whole scene: in, out, and the block left to itself.
+PROBE_STEPS = 1200
+
+
+def _chunk_sizes(steps: int) -> list:
+    out, q = [], 0
+    while sum(out) < steps:
+        out.append(min(CHUNKS[q % len(CHUNKS)], steps - sum(out)))
+        q += 1
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def _golden_poke(name: str, steps: int) -> list:
+    """Golden stepped one step at a time along the scene's design poke: at the end of each chunk
+    (`_chunk_sizes`), (its state, the force on the probe, the nodes touching it)."""
+    system = scene_system(name)
+    gold = Golden(system)
+    st = gold.initial_state()
+    marks = []
+    for n in _chunk_sizes(steps):
+        for _ in range(n):
+            gold.step(st)
+        marks.append((st.copy(),) + gold.probe_reading(st))
+    return marks
+
+
+def _compare_poke(name: str, steps: int, threads: int):
+    """The cpu backend along the design poke in `_chunk_sizes` calls against `_golden_poke`: returns the
+    largest position (of the object size), a and force (of golden's peak force) differences. Asserts that the
+    probe presses the block, and that its held p and pdot and its contacts equal golden's exactly."""
+    system = scene_system(name)
+    size = float(np.ptp(system.x0, axis=0).max())
+    marks = _golden_poke(name, steps)
+    peak = max(float(np.abs(f).max()) for _, f, _ in marks)
+    most = max(ng for _, _, ng in marks)
+    assert most >= 1 and peak > 0.02, f"{name}: the probe must press the block ({most} nodes, {peak:.3g} N)"
+    cpu = Cpu(system, threads=threads)
+    st_ = cpu.initial_state()
+    dx = da = df = 0.0
+    for n, (g, fg, ng) in zip(_chunk_sizes(steps), marks):
+        cpu.advance(st_, n)
+        fc, nc = cpu.probe_reading(st_)
+        assert st_.step == g.step
+        assert nc == ng, f"{name}, step {g.step}: {nc} nodes touch the probe, golden {ng}"
+        assert np.array_equal(cpu.probe_position(st_), g.probe.p) and np.array_equal(st_.probe.pdot, g.probe.pdot), \
+            f"{name}, step {g.step}: the design poke's p or pdot differs from golden's"
+        assert not st_.probe.driven
+        dx = max(dx, float(np.abs(st_.x - g.x).max()) / size)
+        da = max(da, float(np.abs(st_.a - g.a).max()) if len(g.a) else 0.0)
+        df = max(df, float(np.abs(fc - fg).max()) / peak)
+    return dx, da, df
+
+
+def _check_poke(name, steps, threads):
+    dx, da, df = _compare_poke(name, steps, threads)
+    assert dx <= TOL and da <= TOL and df <= TOL, \
+        f"{name}, {threads} thread(s): x differs by {dx:.3g} of the size, a by {da:.3g}, the force by {df:.3g} of its peak"
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("name", PROBE_SCENES)
+def test_probe_scenes_equal_golden_pressing(name, threads):
+    """Every built-in [probe] scene for PROBE_STEPS steps of its design poke: through the contact and into the
+    block."""
+    _check_poke(name, PROBE_STEPS, threads)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("name", PROBE_SCENES)
+def test_probe_scenes_equal_golden_whole_poke(name, threads):
+    """Every built-in [probe] scene for its whole duration: the design poke in and out, then the block alone
+    (6,000 steps each)."""
+    _check_poke(name, scene_system(name).n_steps, threads)
+
+
+def test_every_builtin_probe_scene_is_compared():
+    assert set(PROBE_SCENES) >= {"poke-2d-viscoelastic", "poke-2d-plastic", "poke-2d-rheological",
+                                 "poke-3d-rheological", "poke-2d-1000-elements"}
+
+
+def _host_trajectory(system, press: int = 100, drag: int = 30):
+    """A host's device samples: the design poke's first `press` samples (3 mm down: 2 mm into the block),
+    then `drag` samples sideways at 20 mm/s with the depth held (the friction relative to the probe)."""
+    pb = system.probe
+    down = pb.design_path(press, system.dt)
+    side = np.zeros(system.dim)
+    side[0] = 1.0
+    along = down[-1][None, :] + np.outer(np.arange(1, drag + 1) * 0.02 * pb.k * system.dt, side)
+    return np.vstack([down, along]), press
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("name", ["poke-2d-rheological", "poke-3d-rheological"])
+def test_host_driven_probe_equals_golden(name, threads):
+    """hold_probe(p) then advance(k) per device sample (what Session.step does), on Golden and the cpu backend:
+    the same held p and pdot, contacts and forces (1e-12 of the peak), positions (1e-12 of the size)."""
+    system = scene_system(name)
+    size = float(np.ptp(system.x0, axis=0).max())
+    k = system.probe.k
+    traj, press = _host_trajectory(system)
+    gold, cpu = Golden(system), Cpu(system, threads=threads)
+    g, c = gold.initial_state(), cpu.initial_state()
+    fg_all, fc_all, dx = [], [], 0.0
+    for p in traj:
+        for stepper, st_ in ((gold, g), (cpu, c)):
+            stepper.hold_probe(st_, p)
+            stepper.advance(st_, k)
+        assert c.probe.driven and c.step == g.step
+        assert np.array_equal(cpu.probe_position(c), gold.probe_position(g)) and np.array_equal(c.probe.pdot, g.probe.pdot)
+        fg, ng = gold.probe_reading(g)
+        fc, nc = cpu.probe_reading(c)
+        assert nc == ng, f"step {g.step}: {nc} nodes touch the probe, golden {ng}"
+        fg_all.append(fg)
+        fc_all.append(fc)
+        dx = max(dx, float(np.abs(c.x - g.x).max()) / size)
+    fg_all, fc_all = np.array(fg_all), np.array(fc_all)
+    peak = float(np.abs(fg_all).max())
+    assert peak > 0.02 and np.abs(fg_all[press:, 0]).max() > 0.05 * peak, "pressed in, then dragged with friction"
+    assert dx <= TOL and float(np.abs(fc_all - fg_all).max()) <= TOL * peak, (dx, np.abs(fc_all - fg_all).max() / peak)
+
+
+def test_forces_with_the_probe_equal_golden():
+    """Cpu.forces against Golden.forces with the probe pressed in: the node forces, and the probe's nodes, their
+    forces and the force on it (ProbeState.record of the one evaluation)."""
+    system = scene_system("poke-2d-rheological")
+    g = _golden_poke("poke-2d-rheological", PROBE_STEPS)[-1][0]
+    a, b = g.copy(), g.copy()
+    Fg, _, adot_g = Golden(system).forces(a, a.step * system.dt)
+    Fc, adot_c = Cpu(system).forces(b, b.step * system.dt)
+    assert a.probe.contacts >= 1
+    assert np.abs(Fc - Fg).max() <= TOL * np.abs(Fg).max() and np.abs(adot_c - adot_g).max() <= TOL * np.abs(adot_g).max()
+    assert np.array_equal(b.probe.nodes, a.probe.nodes) and b.probe.contacts == a.probe.contacts
+    assert np.abs(b.probe.node_forces - a.probe.node_forces).max() <= TOL * np.abs(a.probe.force).max()
+    assert np.abs(b.probe.force - a.probe.force).max() <= TOL * np.abs(a.probe.force).max()
+    assert np.array_equal(b.probe.p, a.probe.p) and np.array_equal(b.probe.pdot, a.probe.pdot)
+
+
+# ---------------------------------------------------------------------------- random scenes
 
 def _random_scene(tmp_path, draw_seed: int) -> tuple:
     """A valid random scene from a seed: returns (System, the TOML text)."""
@@ -180,12 +334,15 @@ def test_a_diverging_cpu_run_is_reported():
         simulate(fast, every=20, stepper=Cpu(fast))
 
 
-def test_simulate_cli_cpu_backend_writes_golden_positions(tmp_path):
+@pytest.mark.parametrize("scene, steps", [("press-2d-rheological", 300), ("poke-2d-rheological", 600)])
+def test_simulate_cli_cpu_backend_writes_golden_positions(tmp_path, scene, steps):
+    """`rheo simulate --backend cpu` (a poke scene: the probe follows its design poke, in contact from step
+    340) writes golden's positions."""
     outs = {}
     for backend in ("golden", "cpu"):
         out = tmp_path / f"{backend}.npz"
-        r = subprocess.run([sys.executable, "-m", "sim.cli", "simulate", "press-2d-rheological", "--backend", backend,
-                            "--steps", "300", "--every", "100", "--out", str(out)], capture_output=True, text=True)
+        r = subprocess.run([sys.executable, "-m", "sim.cli", "simulate", scene, "--backend", backend,
+                            "--steps", str(steps), "--every", "100", "--out", str(out)], capture_output=True, text=True)
         assert r.returncode == 0, r.stderr
         outs[backend] = np.load(out)
     size = float(np.ptp(outs["golden"]["x"][0], axis=0).max())

@@ -311,17 +311,25 @@ def design_samples(name, n):
 API_SAMPLES = 60      # the probe touches the block after 34 samples (1 mm of air at 0.03 m/s)
 
 
-def run_api(name, backend, n=API_SAMPLES, **kw):
+def run_api(name, backend, n=API_SAMPLES, frame=False, **kw):
+    """The readings of `n` device samples of the design poke through connect(...).step(p) (and the last
+    frame's positions with `frame`)."""
     out = []
     with connect(scene_system(name), backend, **kw) as sim:
         for p in design_samples(name, n):
             out.append(sim.step(p))
-    return out
+        x = sim.frame()[0].copy()
+    return (out, x) if frame else out
 
 
 @pytest.fixture(scope="module")
-def golden_readings():
-    return run_api("poke-2d-rheological", "golden")
+def golden_api_run():
+    return run_api("poke-2d-rheological", "golden", frame=True)
+
+
+@pytest.fixture(scope="module")
+def golden_readings(golden_api_run):
+    return golden_api_run[0]
 
 
 @pytest.fixture(scope="module")
@@ -357,18 +365,30 @@ def test_api_wide_preset_within_its_budget_of_golden(golden_readings, wide_forma
     assert np.abs(f - g).max() <= WIDE_FORCE_BUDGET * peak, np.abs(f - g).max() / peak
 
 
-def test_api_cpu_backend_equals_golden(golden_readings):
-    """The cpu backend gives golden's forces to 1e-12 once it takes a probe; until then it refuses."""
-    from sim.cpu import Cpu
-    if not Cpu.takes_probe:
-        with pytest.raises(HapticError, match="backend 'cpu' cannot take a probe yet"):
-            connect(scene_system("poke-2d-rheological"), "cpu")
-        return
-    cpu = run_api("poke-2d-rheological", "cpu")
+def test_api_cpu_backend_equals_golden(golden_api_run):
+    """connect(scene, "cpu").step(p), the host driving the probe: golden's contacts, forces (1e-12 of the peak)
+    and positions (1e-12 of the object size), with the probe pressing the block."""
+    golden_readings, xg = golden_api_run
+    system = scene_system("poke-2d-rheological")
+    with connect(system, "cpu") as sim:
+        assert sim.stepper.takes_probe and type(sim.stepper).__name__ == "Cpu"
+    cpu, xc = run_api("poke-2d-rheological", "cpu", frame=True)
     g = np.array([r.force for r in golden_readings])
     c = np.array([r.force for r in cpu])
+    assert max(r.contacts for r in golden_readings) >= 1 and np.abs(g).max() > 0.02
     assert [r.contacts for r in cpu] == [r.contacts for r in golden_readings]
+    assert all(r.raw is None for r in cpu)
     assert np.abs(c - g).max() <= 1e-12 * np.abs(g).max()
+    assert np.abs(xc - xg).max() <= 1e-12 * float(np.ptp(system.x0, axis=0).max())
+
+
+def test_api_refuses_a_stepper_that_takes_no_probe(monkeypatch):
+    """A backend whose stepper takes no probe is refused when connected, with one line saying so (the cpu
+    backend made to look like one)."""
+    from sim.cpu import Cpu
+    monkeypatch.setattr(Cpu, "takes_probe", False)
+    with pytest.raises(HapticError, match="backend 'cpu' cannot take a probe yet; use golden or fixed"):
+        connect(scene_system("poke-2d-rheological"), "cpu")
 
 
 @pytest.mark.parametrize("backend", ["amaranth", "icarus", "verilator"])
@@ -495,22 +515,33 @@ def test_probe_painter_draws_the_probe_and_the_force(haptic_run):
     assert red.sum() > 200
 
 
-def test_haptic_on_a_backend_without_a_probe_is_one_line(tmp_path):
-    from sim.cpu import Cpu
-    if Cpu.takes_probe:
-        pytest.skip("the cpu backend takes a probe")
-    (tmp_path / "t.csv").write_text("dx,dy\n0,0\n")
-    one_line_error(rheo("haptic", "poke-2d-viscoelastic", "--trajectory", tmp_path / "t.csv", "--backend", "cpu",
-                        "--out", tmp_path / "r.npz"), "backend 'cpu' cannot take a probe yet")
-    assert not (tmp_path / "r.npz").exists()
+def test_haptic_on_the_cpu_backend_writes_golden_run(haptic_run):
+    """`rheo haptic --backend cpu` runs a probe scene (it used to refuse) and writes golden's run: the probe's
+    positions, forces (1e-12 of the peak), contacts and the frames (1e-12 of the object size)."""
+    tmp, golden_out = haptic_run
+    out = tmp / "cpu.npz"
+    proc = rheo("haptic", "poke-2d-viscoelastic", "--trajectory", tmp / "t.csv", "--every", 10, "--backend", "cpu",
+                "--out", out)
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    assert "120 device samples" in proc.stdout and "on cpu" in proc.stdout
+    with np.load(golden_out) as g, np.load(out) as c:
+        assert str(c["backend"]) == "cpu" and "probe_force_raw" not in c.files
+        peak = np.abs(g["probe_force"]).max()
+        assert peak > 0.05 and g["probe_contacts"].max() >= 1
+        assert np.array_equal(c["probe_p"], g["probe_p"]) and np.array_equal(c["probe_contacts"], g["probe_contacts"])
+        assert np.abs(c["probe_force"] - g["probe_force"]).max() <= 1e-12 * peak
+        assert c["x"].shape == g["x"].shape and np.array_equal(c["t"], g["t"])
+        assert np.abs(c["x"] - g["x"]).max() <= 1e-12 * float(np.ptp(g["x"][0], axis=0).max())
 
 
-def test_bench_haptic_json(tmp_path):
+@pytest.mark.parametrize("backend", ["golden", "cpu"])
+def test_bench_haptic_json(tmp_path, backend):
     press_scene(tmp_path)
-    proc = rheo("bench", "--haptic", "--scene", tmp_path / "press2.toml", "--backend", "golden", "--samples", 30,
+    proc = rheo("bench", "--haptic", "--scene", tmp_path / "press2.toml", "--backend", backend, "--samples", 30,
                 "--seconds", 0.2, "--json")
     assert proc.returncode == 0, proc.stderr
     r = json.loads(proc.stdout)["results"][0]
+    assert r["backend"] == backend
     assert r["samples"] == 30 and r["device_rate_hz"] == pytest.approx(1000.0)
     assert 0 < r["median_us"] <= r["p999_us"] <= r["max_us"]
     assert r["golden_samples_per_s"] > 0 and r["fixed_samples_per_s"] > 0
@@ -520,7 +551,8 @@ def test_bench_haptic_json(tmp_path):
 
 # ---------------------------------------------------------------------------------------------- play
 
-def test_play_window_driven_headless():
+@pytest.mark.parametrize("backend", ["golden", "cpu"])
+def test_play_window_driven_headless(backend):
     """rheo play's controller on the Agg backend: a press in the block below the probe and a drag, then
     animation frames; the object moves and the force on the probe rises."""
     import matplotlib
@@ -528,7 +560,7 @@ def test_play_window_driven_headless():
     import matplotlib.pyplot as plt
     from matplotlib.backend_bases import MouseEvent
     from sim.play import PlayController
-    sim = connect("poke-2d-viscoelastic")
+    sim = connect("poke-2d-viscoelastic", backend)
     fig = plt.figure(figsize=(6, 4))
     try:
         ctl = PlayController(sim, fig, max_speed=0.05, samples_per_frame=2)

@@ -217,11 +217,9 @@ def test_every_builtin_scene_runs_below_its_predicted_limit():
         assert p["margin"] > 1, (name, p["dt_pred"], p["limiting"])
 
 
-def test_probe_contact_enters_the_prediction_like_a_floor_contact(tmp_path):
-    """A stiff probe (K = 1e5 N/m) pressing a viscoelastic block slowly (its design poke): the prediction is
-    limited by the probe, stable, and at least half the measured limit; without the probe's terms it would
-    predict a dt the scene does not survive."""
-    system = scene_from(tmp_path, """
+def stiff_probe_scene(tmp_path):
+    """A stiff probe (K = 1e5 N/m) pressing a viscoelastic block slowly (its design poke)."""
+    return scene_from(tmp_path, """
 dim = 2
 [integrator]
 dt = 1e-4
@@ -238,6 +236,13 @@ position = [0.02, 0.0285]
 depth = 0.008
 poke_time = 0.2
 """)
+
+
+def test_probe_contact_enters_the_prediction_like_a_floor_contact(tmp_path):
+    """A stiff probe pressing a block: the prediction is limited by the probe, stable, and at least half the
+    measured limit (golden's runs); without the probe's terms it would predict a dt the scene does not
+    survive."""
+    system = stiff_probe_scene(tmp_path)
     p = predict(system)
     assert "probe" in p["limiting"] and p["parts"]["contact"] == "probe", p["limiting"]
     r = measure(system)
@@ -245,6 +250,17 @@ poke_time = 0.2
     assert p["dt_pred"] >= 0.5 * r["hi"], (p["dt_pred"], r["lo"], r["hi"])
     blind = predict(dataclasses.replace(system, probe=None))["dt_pred"]
     assert blind > r["hi"], (blind, r["hi"])
+
+
+def test_stability_measures_a_probe_scene_on_the_cpu_backend(tmp_path):
+    """`rheo stability --measure` on a scene with a probe runs its trials on the cpu backend (it used to fall
+    back to golden): the same bracket as golden's own runs."""
+    from sim.cli.stability import report
+    system = stiff_probe_scene(tmp_path)
+    m = report(system, measure=True)["measured"]
+    g = measure(system)
+    assert m["stepper"] == "cpu"
+    assert (m["stable_at"], m["unstable_at"]) == (g["lo"], g["hi"]), (m, g["lo"], g["hi"])
 
 
 def test_prediction_is_fast_for_1e5_elements(tmp_path):

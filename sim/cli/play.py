@@ -1,4 +1,4 @@
-"""`rheo play SCENE [--backend golden|fixed]`: drag the probe with the mouse and feel (see) the object
+"""`rheo play SCENE [--backend golden|cpu|fixed]`: drag the probe with the mouse and feel (see) the object
 push back, live (sim/play.py)."""
 from __future__ import annotations
 
@@ -13,8 +13,9 @@ DESCRIPTION = ("Open a window on a scene with a [probe] table: press the mouse b
 
 def add_arguments(parser) -> None:
     scene_argument(parser)
-    parser.add_argument("--backend", default="golden", choices=("golden", "fixed"),
-                        help="model to run (default: golden; fixed: the bit-true model, slower)")
+    parser.add_argument("--backend", default="golden", choices=("golden", "cpu", "fixed"),
+                        help="model to run (default: golden; cpu: the golden physics compiled, faster; fixed: the "
+                             "bit-true model, slower)")
     parser.add_argument("--preset", default="wide", choices=FORMAT_PRESETS,
                         help="number-format preset of the fixed backend (default: wide)")
     parser.add_argument("--samples-per-frame", type=positive_int, default=1,

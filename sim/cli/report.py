@@ -27,9 +27,10 @@ def run(args) -> int:
     check_output_dir(args.out)                     # before the minutes of runs
     system = load_system(args.scene)
     check_backend_fits(system, "fixed")
-    if system.probe is not None:
-        raise UsageError(f"scene '{system.name}' has a probe: the report's runs at other dt and on the cpu backend "
-                         f"do not take one yet (a device sample is k steps); use rheo haptic and rheo simulate")
+    if system.probe is not None:        # a device sample is k steps: at 2 dt, 4 dt and dt/16, another device rate
+        raise UsageError(f"scene '{system.name}' has a probe: the report's runs at 2 dt, 4 dt and dt/16 would hold "
+                         f"each device sample for k = {system.probe.k} steps of their own dt, another device rate, "
+                         f"and their discretisation error would be mostly the rate's; use rheo haptic and rheo simulate")
     clock, source = args.clock_mhz, "assumed (--clock-mhz)"
     if args.synth is not None:
         try:

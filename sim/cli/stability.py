@@ -63,11 +63,8 @@ def report(system, measure: bool = False, model: str = "golden", preset: str = "
     if not measure:
         return out
     if model in ("golden", "both"):
-        from sim.cpu import Cpu, stability_model  # the golden physics, compiled: the same verdicts, faster
-        if system.probe is not None and not Cpu.takes_probe:
-            out["measured"] = {**_measured(measure_dt(system, pred=p)), "stepper": "golden"}   # the probe
-        else:
-            out["measured"] = {**_measured(measure_dt(system, pred=p, model=stability_model)), "stepper": "cpu"}
+        from sim.cpu import stability_model       # the golden physics, compiled: the same verdicts, faster
+        out["measured"] = {**_measured(measure_dt(system, pred=p, model=stability_model)), "stepper": "cpu"}
     if model in ("fixed", "both"):
         from hw.stability_fixed import measure_fixed
         m = measure_fixed(system, preset, pred=p)
