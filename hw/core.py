@@ -162,6 +162,7 @@ class CoreConfig:
 def schedule(cfg: CoreConfig) -> dict:
     """The core's static timing (known when it is constructed): cycles per step and the pipeline drains."""
     core = Core(cfg)
+    core._MustUse__used = True               # built for its facts only (no UnusedElaboratable warning)
     return {"cycles_per_step": core.cycles_per_step, "drain_elements": core.drain_elements,
             "drain_nodes": core.drain_nodes, "lanes": cfg.lanes, "node_lanes": cfg.node_lanes}
 

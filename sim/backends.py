@@ -27,6 +27,53 @@ def bit_true_model(system: System, preset: str, steps: int | None = None):
     return BitTrue(system, preset, range_steps=max(system.n_steps, steps or 0))
 
 
+PRESET_BUDGET = 1e-3       # of the object size: a default preset's largest position error against golden
+PRESET_ORDER = ("narrow", "medium", "wide")      # narrowest first: fewer bits, fewer multipliers
+
+
+def preset_error(system: System, preset: str, steps: int | None = None, gold: Run | None = None,
+                 ranges=None) -> tuple[float | None, str]:
+    """The bit-true run of `preset` against golden over `steps` (default the scene's): (largest position
+    error on any recorded frame / object size, or None when the preset cannot run the scene; a note)."""
+    from golden.errors import RheoError
+    from hw.bittrue import BitTrue, scene_ranges
+    n = system.n_steps if steps is None else int(steps)
+    every = max(1, n // 50)
+    gold = gold if gold is not None else simulate(system, steps=n, every=every)
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            ranges = ranges or scene_ranges(system, n)
+            run = simulate(system, steps=n, every=every, stepper=BitTrue(system, preset, ranges=ranges))
+    except RheoError as exc:                 # no formats, or a runaway of saturations
+        return None, str(exc)
+    size = float(np.ptp(system.x0, axis=0).max()) or 1.0
+    return float(np.abs(run.x - gold.x).max()) / size, f"over {n} steps"
+
+
+def narrowest_preset(system: System, steps: int | None = None, budget: float = PRESET_BUDGET, log=None):
+    """The narrowest format preset whose bit-true run of the scene (`steps`, default the scene's) stays
+    within `budget` x the object size of golden on every recorded frame, without a runaway of saturations
+    (issue 15: defaults do not trade accuracy for speed silently). Returns (preset, error, why): why is one
+    line with each tried preset's error; when none is within the budget, "wide" and a line saying so."""
+    from hw.bittrue import scene_ranges
+    say = log or (lambda m: None)
+    n = system.n_steps if steps is None else int(steps)
+    gold = simulate(system, steps=n, every=max(1, n // 50))
+    with np.errstate(over="ignore", invalid="ignore"):
+        ranges = scene_ranges(system, n)
+    tried, err = [], None
+    for preset in PRESET_ORDER:
+        err, note = preset_error(system, preset, n, gold, ranges)
+        tried.append(f"{preset} {err:.1e}" if err is not None else f"{preset} cannot run it")
+        say(f"preset {preset}: " + (f"{err:.1e} of the object size against golden {note}" if err is not None
+                                    else note))
+        if err is not None and err <= budget:
+            return preset, err, (f"preset {preset}: the narrowest within {budget:g} of the object size of golden "
+                                 f"over {n} steps ({', '.join(tried)})")
+    return "wide", err, (f"preset wide: no preset is within {budget:g} of the object size of golden over {n} "
+                         f"steps ({', '.join(tried)}); wide is the most accurate")
+
+
 def run_backend(system: System, backend: str, steps=None, every=None, progress=False, preset="wide",
                 lanes=1, node_lanes=1, bittrue=None, core="auto") -> Run:
     """Run `system` on `backend` (BACKENDS); `bittrue`: the bit-true model to use (formats) for a

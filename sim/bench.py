@@ -159,12 +159,14 @@ def bench_fixed(n_elements: int, min_seconds: float = 1.0, preset: str = "wide")
     return _timed(bt, bt.initial_state(), system, min_seconds, backend="fixed", preset=preset)
 
 
-def bench_fpga(system: System, preset: str = "medium", lanes: int = 1, node_lanes: int = 1,
+def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes: int = 1,
                simulator: str = "verilator", steps: int = 2, fmax_mhz: float | None = None,
                device: str = "ecp5-85k", min_seconds: float = 1.0, range_steps: int | None = None,
                log=None, core: str = "auto") -> dict:
     """Modelled FPGA throughput of `system`'s specialised core and the golden model's measured throughput.
 
+    The preset ("auto": the narrowest within 1e-3 of the object size of golden, sim.backends.narrowest_preset)
+    and its bit-true run's error against golden over the scene's steps are part of the row.
     Cycles per step come from the HDL simulation: the core's CYCLES register over a run of 1 step and a
     run of `steps` steps after it (their difference over steps - 1: the streaming core's period, without
     its prologue and epilogue), from the initial state; each read-back must equal the bit-true model's.
@@ -176,7 +178,17 @@ def bench_fpga(system: System, preset: str = "medium", lanes: int = 1, node_lane
     from hw.stream import resolve_core
     from .hdlsim import emit_core, run_job
     from .synth import synthesize_cached
+    from .backends import narrowest_preset, preset_error
     say = log or (lambda m: None)
+    resolve_core(system, core)                       # a scene no core takes: refused before any run
+    if preset == "auto":
+        say(f"{system.name}: choosing the preset (bit-true runs against golden over {system.n_steps} steps)")
+        preset, error, chosen = narrowest_preset(system, log=say)
+        say(chosen)
+    else:
+        error, note = preset_error(system, preset)
+        say(f"preset {preset}: " + (f"{error:.1e} of the object size against golden {note}" if error is not None else note))
+        chosen = f"preset {preset}: chosen (--preset)"
     say(f"{system.name}: formats (preset {preset})")
     bt = BitTrue(system, preset, range_steps=range_steps)
     kind = resolve_core(bt.params, core)
@@ -194,6 +206,7 @@ def bench_fpga(system: System, preset: str = "medium", lanes: int = 1, node_lane
                                f"model: {why}")
     cycles = (out["cycles"][1] - out["cycles"][0]) / (steps - 1)
     row = dict(backend="fpga", scene=system.name, elements=system.n_elements, nodes=system.n_nodes, preset=preset,
+               preset_why=chosen, error_vs_golden=error, error_steps=system.n_steps,
                lanes=lanes, node_lanes=node_lanes, core=kind, simulator=simulator, cycles_per_step=cycles,
                cycles_per_step_schedule=man["cycles_per_step"]["value"], run_cycles=out["cycles"],
                ideal_cycles_per_step=-(-system.n_elements // lanes),

@@ -2,7 +2,8 @@
 
   1. the golden run (float64), its pictures, animation and ParaView series;
   2. the number formats of a preset (range analysis), the Verilog of the scene's core and its manifest;
-     Yosys starts on the narrow core in the background;
+     Yosys starts in the background on the core of the narrowest preset within 1e-3 of golden (bit-true runs
+     of the scene, narrowest first: sim.backends.narrowest_preset);
   3. the Verilog simulated (Verilator where installed, else Icarus Verilog) and checked bit for bit
      against the bit-true model over the first steps;
   4. the error-against-run-time report: the bit-true run of every preset against golden, and golden at
@@ -24,7 +25,6 @@ import numpy as np
 
 from golden.system import System
 
-SYNTH_PRESET = "narrow"      # the preset whose products fit one 18x18 multiplier each
 
 
 def hdl_simulator(prefer: str | None = None) -> tuple[str, str | None]:
@@ -93,7 +93,7 @@ def _job(system, out: Path, shown, preset, hdl_steps, synth, place_and_route, si
     from hw.bittrue import BitTrue, scene_ranges
     from hw.datapath import state_difference
     from sim import report, runfile
-    from sim.backends import run_backend
+    from sim.backends import narrowest_preset, run_backend
     from sim.hdlsim import emit_core, run_job
     from sim.render import render, render_before_after
     from sim.synth import synthesize_cached
@@ -139,9 +139,12 @@ def _job(system, out: Path, shown, preset, hdl_steps, synth, place_and_route, si
     summary["core"] = {"core": man["core"], "preset": preset, "cycles_per_step": cps,
                        "units_left_out": [u["unit"] for u in man["units_left_out"]]}
     synthesis = None
-    if synth:
+    if synth:                      # the narrowest preset within 1e-3 of golden (issue 15), said with why
+        synth_preset, _, why = narrowest_preset(system)
+        log(f"      synthesis: {why}")
+        summary["synthesis_preset"] = {"preset": synth_preset, "why": why}
         with np.errstate(over="ignore", invalid="ignore"):
-            nb = BitTrue(system, SYNTH_PRESET, ranges=ranges)
+            nb = BitTrue(system, synth_preset, ranges=ranges)
         syn_dir = out / "synth"
         nm = emit.write(nb, syn_dir, core="auto", ram="ecp5")   # the streaming core with its DP16KDs
         synthesis = _Background(synthesize_cached, syn_dir / nm["verilog"], nm["top"], clock_mhz=100.0,
@@ -194,7 +197,7 @@ def _job(system, out: Path, shown, preset, hdl_steps, synth, place_and_route, si
 
     if synthesis is not None:
         what = "Yosys and nextpnr" if place_and_route else "Yosys (resources; Fmax with --pnr)"
-        t = stage(5, f"synthesis for ECP5-85k, preset {SYNTH_PRESET}: {what}")
+        t = stage(5, f"synthesis for ECP5-85k, preset {synth_preset}: {what}")
         r, cache = synthesis.get()
         for name in ("synth.json", "report.md"):
             shutil.copyfile(cache / name, out / "synth" / name)
@@ -215,7 +218,7 @@ def _job(system, out: Path, shown, preset, hdl_steps, synth, place_and_route, si
         + f"; core: {cps} cycles/step, equal to the bit-true model on {sim_name} over {steps} steps")
     if "synthesis" in summary:
         s = summary["synthesis"]
-        log(f"  ECP5-85k ({SYNTH_PRESET}): {s['luts']} LUT4, {s['flip_flops']} FF, {s['mult18x18']} MULT18X18D, "
+        log(f"  ECP5-85k ({synth_preset}): {s['luts']} LUT4, {s['flip_flops']} FF, {s['mult18x18']} MULT18X18D, "
             f"{s['block_rams']} DP16KD" + (f", Fmax {s['fmax_mhz']:.1f} MHz" if s.get("fmax_mhz") else
                                            " (Fmax: rheo run --pnr, or make synth)"))
     return summary

@@ -47,7 +47,7 @@ def build(system: System, out_dir, presets=("narrow", "medium", "wide"), max_ref
           progress: bool = False) -> dict:
     """Write the report of `system` into out_dir; returns its summary. `progress`: a bar on the long runs."""
     from hw.bittrue import BitTrue, scene_ranges
-    from hw.core import CoreConfig, schedule
+    from hw.stream import cycles_per_step
     from hw.datapath import NotSupported
     from hw.sensitivity import rounded_golden
     from .runfile import check_output_dir, output_directory
@@ -93,7 +93,7 @@ def build(system: System, out_dir, presets=("narrow", "medium", "wide"), max_ref
         for msg in bt.stagnation_messages():
             log(f"warning: {msg}")
         summary["run_time_per_simulated_second"][f"fixed-{preset}"] = wall / T
-        cycles = schedule(CoreConfig.of(bt))["cycles_per_step"]
+        _, cycles = cycles_per_step(bt)          # the core `rheo verilog` builds (--core auto)
         summary["fpga"]["cycles_per_step"][preset] = cycles
         summary["run_time_per_simulated_second"][f"fpga-{preset}"] = cycles / (clock_mhz * 1e6 * system.dt)
 

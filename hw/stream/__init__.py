@@ -47,6 +47,17 @@ def resolve_core(params, core: str = "auto") -> str:
     return core
 
 
+def cycles_per_step(bt, lanes: int = 1, node_lanes: int = 1, core: str = "auto") -> tuple[str, int]:
+    """(the core `core` resolves to, its cycles per step), from the schedule known at construction:
+    nothing is elaborated."""
+    kind = resolve_core(bt.params, core)
+    if kind == "phased":
+        from ..core import CoreConfig, schedule
+        return kind, schedule(CoreConfig.of(bt, lanes, node_lanes))["cycles_per_step"]
+    from .config import StreamConfig
+    return kind, StreamConfig.of(bt, lanes, node_lanes).schedule.period
+
+
 def build_core(bt, lanes: int = 1, node_lanes: int = 1, core: str = "phased", ram: str = "sim"):
     """The core (an Amaranth component with `cfg`, `host`, `cycles_per_step`) for a bit-true model."""
     core = resolve_core(bt.params, core)

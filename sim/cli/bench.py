@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 
-from .common import (FORMAT_PRESETS, UsageError, check_backend_fits, check_square_fits, lane_arguments, load_system, positive_float,
+from .common import (PRESET_CHOICES, UsageError, check_backend_fits, check_square_fits, lane_arguments, load_system, positive_float,
                      positive_int)
 
 NAME, HELP = "bench", "measure steps/s and element-updates/s on generated meshes"
@@ -19,7 +19,9 @@ def add_arguments(parser) -> None:
                         help="approximate element counts of generated squares (default: 1000 10000 100000; fpga: 10000)")
     parser.add_argument("--scene", help="measure this scene instead of generated squares (golden, cpu, fpga)")
     parser.add_argument("--seconds", type=positive_float, default=1.0, help="minimum measuring time per size (default 1)")
-    parser.add_argument("--preset", choices=FORMAT_PRESETS, help="fpga: number-format preset (default medium: narrow's 61 um position LSB saturates the benchmark square's strains)")
+    parser.add_argument("--preset", choices=PRESET_CHOICES,
+                        help="fpga: number-format preset (default auto: the narrowest whose bit-true run stays "
+                             "within 1e-3 of the object size of golden over the scene's steps; the error is reported)")
     lane_arguments(parser)
     parser.add_argument("--simulator", choices=["verilator", "icarus"], default="verilator",
                         help="fpga: HDL simulator that measures cycles per step (default verilator)")
@@ -59,7 +61,7 @@ def run(args) -> int:
         return _haptic(args, scene)
     fpga = {}
     if args.backend == "fpga":
-        fpga = dict(preset=args.preset or "medium", lanes=args.lanes, node_lanes=args.node_lanes, core=args.core,
+        fpga = dict(preset=args.preset or "auto", lanes=args.lanes, node_lanes=args.node_lanes, core=args.core,
                     simulator=args.simulator, steps=args.hdl_steps, fmax_mhz=args.fmax_mhz, device=args.device,
                     log=None if args.json else (lambda m: print(f"  {m}", flush=True)))
     rows = bench.run(args.backend, sizes=sizes, min_seconds=args.seconds, scene=scene, **fpga)
@@ -109,6 +111,9 @@ def _print_fpga(rows) -> None:
         print(f"{r['scene']}: {r['elements']} elements, {r['nodes']} nodes, preset {r['preset']}, "
               f"P = {r['lanes']}, Q = {r['node_lanes']}: {r['cycles_per_step']:.0f} cycles/step ({r['simulator']}: "
               f"{r['simulator_cycles_per_s']:.0f} cycles/s, host interface included)")
+        err = r.get("error_vs_golden")
+        print(f"  {r['preset_why']}; its position error against golden: "
+              + (f"{err:.1e} of the object size over {r['error_steps']} steps" if err is not None else "no run"))
         print(f"  Fmax {r['fmax_mhz']:.1f} MHz ({r['fmax_source']}) -> {r['steps_per_s']:.0f} steps/s, "
               f"{r['element_updates_per_s']:.3e} element-updates/s")
         print(f"  on this machine, same run: cpu backend ({r['cpu_threads']} thread(s)) "

@@ -11,6 +11,7 @@ import numpy as np
 from golden.errors import RheoError
 
 FORMAT_PRESETS = ("narrow", "medium", "wide")       # hw/formats.py FORMAT_PRESETS (tested equal)
+PRESET_CHOICES = FORMAT_PRESETS + ("auto",)        # auto: the narrowest within 1e-3 of golden (sim.backends)
 
 
 class UsageError(RheoError, ValueError):
@@ -114,6 +115,16 @@ def warn_stagnation(bt) -> None:
         print(f"warning: {msg}", file=sys.stderr, flush=True)
 
 
+def choose_preset(system, steps=None) -> str:
+    """--preset auto: the narrowest preset within 1e-3 of the object size of golden over the scene's run,
+    said on stdout with the errors that decided it."""
+    from sim.backends import narrowest_preset
+    print(f"{system.name}: choosing the preset (bit-true runs against golden, narrowest first)", flush=True)
+    preset, _, why = narrowest_preset(system, steps)
+    print(f"  {why}", flush=True)
+    return preset
+
+
 def hardware_model(args):
     """The bit-true model (formats) of the scene a hardware command builds: the scene, or with --full its
     full-featured variant (every optional unit)."""
@@ -125,6 +136,8 @@ def hardware_model(args):
     from hw.stream import resolve_core              # a core the scene cannot have: refused before the range analysis
     resolve_core(system, getattr(args, "core", "auto"))
     check_backend_fits(system, "amaranth")           # the core is elaborated: before the range analysis
+    if args.preset == "auto":
+        args.preset = choose_preset(system)
     print(f"{system.name}: range analysis and formats (preset {args.preset})", flush=True)
     with np.errstate(over="ignore", invalid="ignore"):
         bt = BitTrue(system, args.preset)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .common import FORMAT_PRESETS, hardware_model, lane_arguments, positive_float, scene_argument
+from .common import PRESET_CHOICES, hardware_model, lane_arguments, positive_float, scene_argument
 from .verilog import full_argument
 
 NAME, HELP = "synth", "synthesise the scene's core for an ECP5: resources, Fmax, steps/s"
@@ -16,8 +16,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
     parser.add_argument("--device", default="ecp5-85k", help="ecp5-85k (default), ecp5-45k, ecp5-25k, ecp5-12k")
     parser.add_argument("--clock-mhz", type=positive_float, default=100.0, help="clock constraint (default 100 MHz)")
-    parser.add_argument("--preset", default="narrow", choices=FORMAT_PRESETS,
-                        help="number-format preset (default: narrow, the one whose products fit 18x18 multipliers)")
+    parser.add_argument("--preset", default="auto", choices=PRESET_CHOICES,
+                        help="number-format preset (default auto: the narrowest whose bit-true run stays within 1e-3 "
+                             "of the object size of golden on the scene; narrow's products fit 18x18 multipliers)")
     full_argument(parser)
     parser.add_argument("--no-pnr", dest="pnr", action="store_false",
                         help="Yosys only: resources in minutes, no place and route and no Fmax")
