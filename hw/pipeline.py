@@ -297,9 +297,13 @@ class PipeArith:
         return RtlGate(self, cond)
 
     def rsqrt(self, a, q) -> PV:
-        from .rtl_funcunits import RsqrtUnit
+        """1/sqrt by the unit that implements the bit-true model self.units[q]: RsqrtUnit for an Rsqrt
+        (Newton), RsqrtTableUnit for an RsqrtTable (table and interpolation)."""
+        from .funcunits import RsqrtTable
+        from .rtl_funcunits import RsqrtTableUnit, RsqrtUnit
         s = self._s(a)
-        unit = RsqrtUnit(self.units[q])
+        model = self.units[q]
+        unit = RsqrtTableUnit(model) if isinstance(model, RsqrtTable) else RsqrtUnit(model)
         self.m.submodules[self._name("rsqrt_" + q)] = unit
         self.m.d.comb += [unit.i.payload.eq(self.at(a, s)), unit.i.valid.eq(self.valid_at(s))]
         out = s + unit.latency
