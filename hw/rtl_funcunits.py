@@ -11,8 +11,9 @@ All units are fully pipelined: they accept one input per clock cycle (initiation
 stall (both streams are `always_ready`), and deliver the result of an input accepted in cycle c in cycle
 c + `latency`; `o.valid` is `i.valid` delayed by `latency` cycles. Every product takes PRODUCT_LATENCY = 2
 cycles (hw/rtl_fixed.py `pipelined_product`: 18x18 multipliers, or rows summed in logic for an operand of
-at most 4 bits, each followed by a register, then the sum of the partial products in another register),
-and every rounding (a product plus 2^(s-1), then an arithmetic right shift by s) one more, so that no
+at most 4 bits, each followed by a register, then the sum of the partial products in another register;
+a product by a constant, the inverse table's scale K_raw, is shifts and adds, `constant_product`, when
+they take few adders), and every rounding (a product plus 2^(s-1), then an arithmetic right shift by s) one more, so that no
 cycle holds a multiplier and a wide adder. ROMs are
 `amaranth.lib.memory.Memory` instances with synchronous read ports (block RAM) whose data is registered
 before any arithmetic.
@@ -26,7 +27,7 @@ from amaranth.lib.wiring import In, Out
 
 from .fixed import Shape
 from .funcunits import InverseTable, Rsqrt, RsqrtTable
-from .rtl_fixed import pipelined_product
+from .rtl_fixed import constant_product, pipelined_product
 
 __all__ = ["RsqrtUnit", "RsqrtTableUnit", "InverseTableUnit", "PRODUCT_LATENCY"]
 
@@ -71,9 +72,11 @@ class _Pipe:
 
     def product(self, a, b, latency: int, name=None):
         """The exact product a * b after `latency` cycles (>= its `product_latency`): DSP-sized partial
-        products and their sum (hw/rtl_fixed.py `pipelined_product`), then delay registers, so that the
-        latency does not depend on the operands' widths."""
-        prod, lat = pipelined_product(self.m, a, b, name)
+        products and their sum (hw/rtl_fixed.py `pipelined_product`), or for a constant b (an int) shifts
+        and adds when they take few adders (`constant_product`), then delay registers, so that the
+        latency does not depend on the operands' widths or on the form built."""
+        built = constant_product(self.m, a, b, name) if isinstance(b, int) else None
+        prod, lat = built or pipelined_product(self.m, a, b, name)
         if lat > latency:
             raise AssertionError(f"product {name} takes {lat} cycles, more than the {latency} scheduled")
         return self.delay(prod, latency - lat)
