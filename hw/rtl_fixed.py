@@ -13,8 +13,8 @@ where the bit-true model (hw/fixed.py) rounds and saturates, so the two agree bi
 18x18 multiplier (MULT18X18D) and a product register when both operands fit one, otherwise registered
 DSP-sized partial products and their sum one cycle later (`product_latency` gives its latency).
 `constant_product` forms a product by a constant from shifts and adds of its canonical signed digits
-instead, when that takes few adders (CSD_MAX_ADDERS), with its latency stated (never below the
-multiplier's).
+instead, when that takes few adders (CSD_ADDERS_PER_MULTIPLIER per multiplier saved), with its latency
+stated (never below the multiplier's).
 """
 from __future__ import annotations
 
@@ -24,8 +24,8 @@ from amaranth.hdl import Const as _AConst
 from .fixed import SQ, UQ, Shape
 
 __all__ = ["SQ", "UQ", "Shape", "FixedValue", "Const", "as_shape", "as_float", "DSP_BITS", "LIMB_BITS",
-           "product_latency", "pipelined_product", "tree_sum", "csd_digits", "shift_add_cycles",
-           "constant_product", "CSD_MAX_ADDERS"]
+           "product_latency", "pipelined_product", "tree_sum", "multipliers", "csd_digits", "shift_add_choice",
+           "constant_product", "CSD_ADDERS_PER_MULTIPLIER"]
 
 DSP_BITS = 18     # operand width of one MULT18X18D (18 x 18 bits, signed or unsigned)
 LIMB_BITS = 17    # low limbs of a split operand in a signed product: unsigned, so 18-bit signed values
@@ -264,8 +264,34 @@ def pipelined_product(m: Module, a, b, name: str) -> tuple[Value, int]:
 
 # ------------------------------------------------------------------------------------- constant products
 
-CSD_MAX_ADDERS = 7        # a constant product is built from shifts and adds when it takes at most this many
+CSD_ADDERS_PER_MULTIPLIER = 8    # shift-add products of a constant: at most this many adders per multiplier saved
 ADDER_LEVELS_PER_CYCLE = 2
+
+
+def _odd_part(c: _AConst) -> _AConst:
+    """The constant operand `pipelined_product` multiplies by: c without its trailing zero bits."""
+    if c.value == 0:
+        return c
+    tz = (c.value & -c.value).bit_length() - 1
+    return _AConst(c.value >> tz, signed(len(c) - tz) if c.shape().signed else unsigned(len(c) - tz))
+
+
+def multipliers(a_shape, b_shape) -> int:
+    """MULT18X18D that `pipelined_product` builds for operands of these Amaranth shapes (of a constant
+    operand, its odd part's shape): one per pair of DSP-sized limbs (one for operands that fit one), none for
+    a (partial) product with an operand of at most ROW_BITS bits (rows in logic)."""
+    if product_latency(a_shape, b_shape) == 1:
+        return int(min(a_shape.width, b_shape.width) > ROW_BITS)
+    sp = a_shape.signed or b_shape.signed
+    limb = LIMB_BITS if sp else DSP_BITS
+
+    def widths(shape):
+        w = _operand_width(shape, sp)
+        if w <= DSP_BITS:
+            return [w]
+        n = -(-(w - DSP_BITS) // limb)              # limbs of `limb` bits below a top limb of <= DSP_BITS
+        return [limb] * n + [w - n * limb]
+    return sum(1 for wa in widths(a_shape) for wb in widths(b_shape) if min(wa, wb) > ROW_BITS)
 
 
 def csd_digits(c: int) -> list[tuple[int, int]]:
@@ -358,51 +384,56 @@ class _ShiftAddPlan:
         return len(terms) - 1 + neg, [lv1, lv2 + neg]
 
 
-def shift_add_cycles(c: int) -> int | None:
-    """Cycles the shift-and-add product by the constant c needs at ADDER_LEVELS_PER_CYCLE adder levels per
-    cycle (1 or 2), or None when it would take more than CSD_MAX_ADDERS adders (or more than 2 cycles)."""
-    plan = _ShiftAddPlan(c)
-    for cycles in (1, 2):
+def shift_add_choice(x_shape, c) -> tuple[int, int] | None:
+    """(latency, adders) of the shift-and-add product of a value of Amaranth shape `x_shape` by the constant
+    c (an int or Const), or None when the multiplier is kept: when it would take more than
+    CSD_ADDERS_PER_MULTIPLIER adders per multiplier it replaces (`multipliers`, counted as at least one), or
+    more than ADDER_LEVELS_PER_CYCLE adder levels a cycle over 2 cycles. The latency is the cycles the tree
+    needs (1 or 2), and never less than the multiplier's (`product_latency`)."""
+    c = c if isinstance(c, _AConst) else Value.cast(int(c))
+    odd = _odd_part(c)
+    budget = CSD_ADDERS_PER_MULTIPLIER * max(1, multipliers(x_shape, odd.shape()))
+    plan = _ShiftAddPlan(c.value)
+    floor = product_latency(x_shape, odd.shape())
+    for cycles in (floor, 2) if floor == 1 else (2,):
         adders, levels = plan.cost(cycles)
-        if adders > CSD_MAX_ADDERS:
-            return None
-        if max(levels) <= ADDER_LEVELS_PER_CYCLE:
-            return cycles
+        if adders <= budget and max(levels) <= ADDER_LEVELS_PER_CYCLE:
+            return cycles, adders
     return None
 
 
 def constant_product(m: Module, x, c, name: str) -> tuple[Value, int] | None:
     """The exact product x * c of a value x and a constant c (an Amaranth Const, or an int) by shifts and
-    adds, from a register: (value, latency); None when c takes more than CSD_MAX_ADDERS adders, for which
-    the caller builds a multiplier (`pipelined_product`).
+    adds, from a register: (value, latency); None when the multiplier is kept (`shift_add_choice`), for
+    which the caller builds one (`pipelined_product`).
 
     c's canonical signed digits (`csd_digits`: n non-zero ones) give x c = sum of +/- x 2^k, n - 1 adders
     in a tree of pairwise sums (`_ShiftAddPlan`; one more to negate a result whose terms all stay negative),
     each only as wide as x and the sum's growth (the low bits of x 2^k need no adder). At most
     ADDER_LEVELS_PER_CYCLE = 2 adder levels per cycle, as much logic as an 18x18 multiplier's own cycle: up
-    to 4 digits in one cycle (the tree, then the product register), up to 8 in two (sums of groups of 2 or 4
+    to 4 digits in one cycle (the tree, then the product register), up to 16 in two (sums of groups of 2 or 4
     digits registered, then their sum into the product register). The latency is that, and never less than
     the multiplier's for the same operands (`product_latency`; the tree is then spread over its 2 cycles):
-    the schedule is the multiplier's wherever that fits, and one cycle longer for 5 to 8 digits (or 4 with
-    a final negation) on operands that fit one multiplier. The result has the shape of
-    x * c, like `pipelined_product`'s; registers are reset-less.
+    the schedule is the multiplier's wherever that fits, and one cycle longer for 5 or more digits (or 4
+    with a final negation) on operands that fit one multiplier. The result has the shape of x * c, like
+    `pipelined_product`'s; registers are reset-less.
 
-    Threshold: CSD_MAX_ADDERS = 7 (8 digits). An ECP5-85k has 156 MULT18X18D and 83,640 LUT4s, 536 LUTs per
-    multiplier; an adder of an 18-bit operand is about 20 bits wide (10 CCU2C carry cells, 20 LUTs' worth),
-    so 7 of them cost about 140 LUTs, a quarter of a multiplier's share of the chip, which runs out of
-    multipliers first. A 17-bit constant (a scene's k1, c1, penalty constants or damper slopes, fitted to
-    18-bit words) has 6 non-zero digits on average; denser ones (9 and more digits) would need a third cycle
-    and keep their multiplier.
+    Threshold: at most CSD_ADDERS_PER_MULTIPLIER = 8 adders per multiplier saved. An ECP5-85k has 156
+    MULT18X18D and 83,640 LUT4s, 536 LUTs per multiplier, and the element lanes run out of multipliers
+    first (a narrow 2D lane takes about 3,500 LUTs). An adder of an 18-bit operand is about 20 bits wide (10
+    CCU2C carry cells, 20 LUTs' worth): 8 of them cost about 160 LUTs, under a third of a multiplier's share
+    of the chip. 8 adders take every constant of an 18-bit word (at most 9 signed digits: k1, c1, penalty
+    constants, the damper's slopes) but a 9-digit one whose result needs a negation; the damper table's
+    25-bit scale replaces 2 multipliers (16 adders, up to the 2-cycle limit of 16 digits).
     """
     x = Value.cast(x)
     c = c if isinstance(c, _AConst) else Value.cast(int(c))
-    cv = c.value
-    cycles = shift_add_cycles(cv)
-    if cycles is None:
+    choice = shift_add_choice(x.shape(), c)
+    if choice is None:
         return None
+    latency, _ = choice
     shape = (x * c).shape()
-    latency = max(cycles, product_latency(x.shape(), c.shape()))
-    plan = _ShiftAddPlan(cv)
+    plan = _ShiftAddPlan(c.value)
 
     def reg(value, shp, nm):
         r = Signal(shp, name=nm, reset_less=True)

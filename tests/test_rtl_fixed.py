@@ -10,8 +10,8 @@ from amaranth.hdl import Module, Signal, Value, signed, unsigned
 from amaranth.sim import Simulator
 
 from hw.fixed import SQ, UQ, Saturations, add, mul
-from hw.rtl_fixed import (CSD_MAX_ADDERS, DSP_BITS, Const, FixedValue, as_shape, constant_product, csd_digits,
-                          pipelined_product, product_latency, shift_add_cycles)
+from hw.rtl_fixed import (CSD_ADDERS_PER_MULTIPLIER, DSP_BITS, Const, FixedValue, as_shape, constant_product,
+                          csd_digits, multipliers, pipelined_product, product_latency, shift_add_choice)
 
 CASES = 400
 
@@ -120,6 +120,15 @@ PRODUCTS = [(signed(18), signed(18), 1, 1), (unsigned(18), unsigned(18), 1, 1),
 
 
 @pytest.mark.parametrize("sa, sb, latency, mults", PRODUCTS, ids=[f"{a}x{b}" for a, b, _, _ in PRODUCTS])
+def test_multipliers_counts_what_pipelined_product_builds(sa, sb, latency, mults):
+    """multipliers() (the shift-add products' budget) equals the $mul cells of the products above; a
+    constant counts by its odd part."""
+    from hw.rtl_fixed import _odd_part
+    b = _odd_part(Value.cast(sb)).shape() if isinstance(sb, int) else sb
+    assert multipliers(sa, b) == mults
+
+
+@pytest.mark.parametrize("sa, sb, latency, mults", PRODUCTS, ids=[f"{a}x{b}" for a, b, _, _ in PRODUCTS])
 def test_pipelined_product_is_exact_with_its_latency(sa, sb, latency, mults):
     """Every product equals a * b, `latency` cycles after its operands; every multiplier of the RTLIL
     has operands of at most 18 bits, and there are as many as the limbs make."""
@@ -188,14 +197,17 @@ def test_saturate_clamps_every_raw_value(raw_shape, dst):
 
 # ------------------------------------------------------------------------------------- constant products
 
-# constants: zero, +/- 1, powers of two, negative ones, sparse and dense signed-digit patterns (the most
-# digits a shift-add product takes: 8, a 7-digit 0b1010101010101, 7 digits ending in a negation), the
-# narrow square's element constants (k1 = 85899, c1 = 83886, 130941, 25 * 4096, 104753) and the damper
-# table's 25-bit scales, 78125 (press-2d's), and dense ones that keep their multiplier
+# constants: zero, +/- 1, powers of two, negative ones, sparse and dense signed-digit patterns (9 digits,
+# the most an 18-bit word has; 7 digits ending in a negation), the narrow square's element constants
+# (k1 = 85899, c1 = 83886, 130941, 25 * 4096, 104753), press-2d's c1 (104858, 9 digits), 78125, the damper
+# tables' 25-bit scales (2 multipliers: up to 16 adders); and dense ones that keep their multiplier (a
+# 9-digit 18-bit constant whose sum needs a negation: 9 adders; 17 digits, or 13 and a negation: more than
+# 2 adder levels in a cycle)
 SHIFT_ADD_CONSTANTS = [0, 1, -1, 2, -2, 1 << 17, -(1 << 17), 3, -3, 5, -5, 7, -7, 25, -17, 0b1010101010101,
-                       -0b1010101010101, 0b101010101010101, 85899, 83886, -83886, 130941,
-                       25 * 4096, 104753, -104753, 27780865, 32006401, 78125, (1 << 17) - 1, -(1 << 17) + 1]
-DENSE_CONSTANTS = [0b10101010101010101, 87381, -87381, 0x2AAAAAA]
+                       -0b1010101010101, 0b101010101010101, 87381, 85899, 83886, -83886, 130941, 25 * 4096,
+                       104753, -104753, 104858, 78125, (1 << 17) - 1, -(1 << 17) + 1]
+WIDE_CONSTANTS = [27780865, 32006401, 17779753, 0x2AAAAAA, -0x2AAAAA7, -27780865]
+DENSE_CONSTANTS = [-87381, 0x2AAAAAAAA, -0x2AAAAAA]
 
 
 def test_csd_digits_are_canonical_and_exact():
@@ -213,15 +225,15 @@ def test_csd_digits_are_canonical_and_exact():
 
 def _check_constant_products(x_shape, constants, values):
     """Every constant_product of x by the constants equals x * c exactly, `latency` cycles after x, from
-    adders only (no $mul cell); the latency is the stated one: no less than the multiplier's, 1 for up to
-    2 adder levels, else 2."""
+    adders only (no $mul cell); the latency is the stated one (`shift_add_choice`), no less than the
+    multiplier's."""
     x = Signal(x_shape)
     m = Module()
     outs = []
     for j, c in enumerate(constants):
         p, lat = constant_product(m, x, c, f"p{j}")
-        cycles = shift_add_cycles(c)
-        assert lat == max(cycles, product_latency(x_shape, Value.cast(c).shape()))
+        assert lat == shift_add_choice(x_shape, c)[0] in (1, 2)
+        assert lat >= product_latency(x_shape, Value.cast(c).shape()) or c % 2 == 0
         assert p.shape() == (x * c).shape()
         pv = Signal(p.shape(), name=f"o{j}")
         m.d.comb += pv.eq(p)
@@ -257,36 +269,41 @@ def test_constant_product_is_exact(x_shape):
         rng = np.random.default_rng(x_shape.width)
         values = [lo, hi, lo + 1, hi - 1, 0, 1, -1 if x_shape.signed else 2]
         values += [int(v) for v in rng.integers(lo, hi, 1500, endpoint=True)]
-    consts = [c for c in SHIFT_ADD_CONSTANTS if shift_add_cycles(c) is not None]
-    assert consts == SHIFT_ADD_CONSTANTS
+    consts = SHIFT_ADD_CONSTANTS + (WIDE_CONSTANTS if x_shape.width > 4 else [])
+    assert all(shift_add_choice(x_shape, c) is not None for c in consts)
     _check_constant_products(x_shape, consts, values)
 
 
 def test_constant_product_threshold():
-    """At most CSD_MAX_ADDERS = 7 adders (8 signed digits; 7 when a negation is needed); denser constants are
-    left to the multiplier (None). Up to 4 digits take one cycle, like the 18x18 multiplier they replace."""
-    assert CSD_MAX_ADDERS == 7
+    """At most CSD_ADDERS_PER_MULTIPLIER = 8 adders per multiplier saved (every 18-bit constant, at most 9
+    signed digits, but one needing a negation), at most 2 adder levels a cycle over 2 cycles; denser
+    constants are left to the multiplier (None). Up to 4 digits take one cycle, like the 18x18 multiplier
+    they replace; a 25-bit constant replaces 2 multipliers and keeps their 2 cycles."""
+    assert CSD_ADDERS_PER_MULTIPLIER == 8
     m = Module()
     x = Signal(signed(18))
     for c in DENSE_CONSTANTS:
-        assert shift_add_cycles(c) is None and constant_product(m, x, c, "p") is None
-    assert [shift_add_cycles(c) for c in (0, 1, -1, 25, 130941, 85899, 104753)] == [1, 1, 1, 1, 1, 2, 2]
+        assert shift_add_choice(x.shape(), c) is None and constant_product(m, x, c, "p") is None
+    assert ([shift_add_choice(x.shape(), c) for c in (0, 1, -1, 25, 130941, 85899, 104753, 104858, 17779753)]
+            == [(1, 0), (1, 0), (1, 1), (1, 2), (1, 3), (2, 6), (2, 7), (2, 8), (2, 8)])
     # a wide operand keeps the multiplier's 2 cycles even for a 1-digit constant
     _, lat = constant_product(m, Signal(signed(36)), 4, "q")
     assert lat == 2
     assert "cell $mul" not in rtlil.convert(m, ports=[x])
 
 
-@pytest.mark.parametrize("value", [1.5, -0.3125, 0.6, -1.2345678, 0.0, 1.3333333], ids=str)
+@pytest.mark.parametrize("value", [1.5, -0.3125, 0.6, -1.2345678, 0.0, 1.3333333, -1.3333333], ids=str)
 def test_pipeline_product_by_a_constant_equals_the_bit_true_model(value):
     """PipeArith.mul by a constant (hw/pipeline.py): shift-add or multiplier as the constant's digits decide,
     the result at the stage the form built states, rounded and saturated exactly as hw/fixed.py mul, with
     its saturation flags. Raw constants: 98304 and -20480 (2 digits: one cycle), 39322 and -80909 (8 and 6:
-    two cycles), 0, and 87381 (9 digits: a multiplier)."""
+    two cycles), 0, 87381 (9 digits: 8 adders, two cycles) and -87381 (9 digits and a negation: a
+    multiplier)."""
     from hw.pipeline import PipeArith
     fx, fk, fq = SQ(3, 15), SQ(2, 16), SQ(2, 10)
     k_raw = int(fk.from_float(value))
-    sparse = shift_add_cycles(k_raw) is not None
+    choice = shift_add_choice(signed(18), k_raw)
+    sparse = choice is not None
     m = Module()
     valid, x = Signal(), Signal(signed(18))
     ar = PipeArith(m, {"x": fx, "k": fk, "q": fq}, {}, valid, "lane")
@@ -295,7 +312,7 @@ def test_pipeline_product_by_a_constant_equals_the_bit_true_model(value):
         events = dict(ar.saturation_events())
     text = rtlil.convert(m, ports=[valid, x, r.sig])
     assert ("cell $mul" in text) == (not sparse)
-    assert r.stage == 1 + (max(shift_add_cycles(k_raw), 1) if sparse else 1)
+    assert r.stage == 1 + (choice[0] if sparse else 1)
     rng = np.random.default_rng(abs(k_raw))
     xs = [fx.min_raw, fx.max_raw, 0, 1, -1] + [int(v) for v in rng.integers(fx.min_raw, fx.max_raw, 600, endpoint=True)]
     expected, flags = [], []
