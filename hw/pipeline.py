@@ -11,8 +11,8 @@ Schedule (as soon as possible, no stalls; II = 1):
 - multiply: 1 + `product_latency` stages (hw/rtl_fixed.py): 2 when both operands fit one 18x18
   multiplier (exact product register, then round/saturate register), 3 when one is wider (registered
   DSP-sized partial products, their exact sum, then round/saturate); a product by a constant built from
-  shifts and adds (`constant_product`) takes 1 + its stated latency (the same, or 3 for a constant of 5 to
-  8 signed digits by an operand that fits one multiplier); add, subtract, sum of terms, negate,
+  shifts and adds (`constant_product`) takes 1 + its stated latency (the same, or 3 for a constant of 5 or
+  more signed digits by an operand that fits one multiplier); add, subtract, sum of terms, negate,
   convert, select: 1 stage; comparisons and boolean logic: 0 stages (combinational, folded into the select
   that uses them); constants and per-phase values (step counter): no stage at all;
 - function units (hw/rtl_funcunits.py) stream their operand in and their result out after their latency.
@@ -249,8 +249,11 @@ class PipeArith:
         name = self._name("prod")
         built = None
         if isinstance(a.sig, Const) != isinstance(b.sig, Const):
-            c, x = (fa, fb) if isinstance(a.sig, Const) else (fb, fa)
-            built = constant_product(self.m, x.raw, c.raw, name)
+            (cv, fc), x = ((a, fa), fb) if isinstance(a.sig, Const) else ((b, fb), fa)
+            # the constant from the operand's own Const (fx may hand a delay register of it, or a sign
+            # reinterpretation: an Operator), its bits read as the operand's format reads them
+            c = Const(cv.sig.value, fc.raw.shape())
+            built = constant_product(self.m, x.raw, c, name)
         p, lat = built or pipelined_product(self.m, fa.raw, fb.raw, name)
         self.n_registers_bits += p.shape().width
         rounded = FixedValue(p, fa.f + fb.f).round(self.shape(q))

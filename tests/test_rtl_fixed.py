@@ -341,3 +341,44 @@ def test_pipeline_product_by_a_constant_equals_the_bit_true_model(value):
         assert sats == flags
     else:
         assert not any(flags)
+
+
+@pytest.mark.parametrize("form", ["delayed", "other_signedness"])
+def test_pipeline_product_by_a_constant_operand_reads_it_as_its_format(form):
+    """PipeArith.mul takes the constant from the operand's own Const, read as the operand's format reads it:
+    a Const fed in at an earlier stage than the other operand (fx hands a delay register of it) and a Const
+    of unsigned bits in a signed format (fx hands a sign reinterpretation) both give the bit-true product,
+    by shifts and adds (raw k = -20480: 2 signed digits, one cycle)."""
+    from amaranth.hdl import Const as AConst
+
+    from hw.pipeline import PipeArith
+    fx, fk, fq = SQ(3, 15), SQ(2, 16), SQ(2, 10)
+    k_raw = -20480
+    m = Module()
+    valid, x = Signal(), Signal(signed(18))
+    ar = PipeArith(m, {"x": fx, "k": fk, "q": fq}, {}, valid, "lane")
+    with ar:
+        if form == "delayed":
+            k, xin, x_stage = ar.input(AConst(k_raw, signed(18)), "k", 0), ar.input(x, "x", 1), 1
+        else:
+            k, xin, x_stage = ar.input(AConst(k_raw & 0x3FFFF, unsigned(18)), "k", None), ar.input(x, "x", 0), 0
+        r = ar.mul(xin, k, "q")
+    assert "cell $mul" not in rtlil.convert(m, ports=[valid, x, r.sig])
+    assert r.stage == x_stage + 2
+    rng = np.random.default_rng(5)
+    xs = [fx.min_raw, fx.max_raw, 0, 1, -1] + [int(v) for v in rng.integers(fx.min_raw, fx.max_raw, 300, endpoint=True)]
+    expected = [int(mul(np.array([v]), fx, np.array([k_raw]), fk, fq, Saturations(), "q")[0]) for v in xs]
+    got, L = [], r.stage - x_stage
+
+    async def tb(ctx):
+        for c in range(len(xs) + L + 3):
+            ctx.set(valid, 1)
+            ctx.set(x, xs[c] if c < len(xs) else 0)
+            await ctx.tick()
+            if 0 <= c - L + 1 < len(xs):
+                got.append(ctx.get(r.sig))
+    sim = Simulator(m)
+    sim.add_clock(1e-8)
+    sim.add_testbench(tb)
+    sim.run()
+    assert got == expected
