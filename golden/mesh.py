@@ -12,8 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import RheoError
 
-class MeshError(ValueError):
+
+class MeshError(RheoError, ValueError):
     """A mesh that cannot be simulated; the message names the problem."""
 
 

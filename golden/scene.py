@@ -1,8 +1,10 @@
 """Scenes: TOML files describing objects, materials, world, loads and integrator; validated on load.
 
-`load_scene(name_or_path)` returns a `Scene` (the parsed, checked tables); `compile_scene(scene)`
-returns a `System` of arrays for the models. Every problem raises `SceneError` with a one-line
-message that names the scene, the table and the key. The format is documented in README.md.
+`load_scene(name_or_path)` reads, checks and compiles a scene into the `System` of arrays the models step;
+`read_scene` only reads it (the raw tables, a `Scene`), `compile_scene(scene)` checks and compiles those.
+Every problem raises `SceneError` with a one-line message that names the scene, the table and the key. The
+format is documented in README.md. A `[formats]` table is kept as given: number formats belong to the
+hardware (hw/formats.py `check_scene_formats` validates it).
 """
 from __future__ import annotations
 
@@ -16,13 +18,15 @@ from pathlib import Path
 import numpy as np
 
 from . import mesh as meshlib
-from .contact import Collision, Floor
-from .elements import ElementParams
+from .errors import RheoError
+from .builder import NONLINEAR, CollisionSpec, SystemBuilder, TopologySpec
+from .contact import Floor
 from .limits import mesh_nodes_fit
-from .model import Load, System, Topology
+from .probe import Probe
+from .system import Load, System
 
 
-class SceneError(ValueError):
+class SceneError(RheoError, ValueError):
     """A scene that cannot be loaded or run; the message names the problem."""
 
 
@@ -38,7 +42,7 @@ def file_stem(name: str) -> str:
 
 # ---------------------------------------------------------------- materials
 
-PRESETS = {
+MATERIALS = {
     # a_min = a_max = 1: the Voigt part takes the whole length, c2 never acts (no a state)
     "viscoelastic": dict(k1=50.0, c1=0.5, a0=1.0, a_min=1.0, a_max=1.0, c2=1.0),
     # k1 = 0, c1 = c_max: two dampers in series; plasticity set by c_min and f2
@@ -50,7 +54,7 @@ PRESETS = {
     # a stiff viscoelastic object (seed fig. 11)
     "rigid": dict(k1=2000.0, c1=2.0, a0=1.0, a_min=1.0, a_max=1.0, c2=1.0),
 }
-_NONLINEAR = ("c_min", "c_max", "f1", "f2")
+_NONLINEAR = NONLINEAR
 _MATERIAL_KEYS = {"preset", "k1", "c1", "a0", "a_min", "a_max", "c2", *_NONLINEAR, "density", "node_mass"}
 
 
@@ -145,8 +149,13 @@ def builtin_names() -> list[str]:
     return sorted(p.name[:-5] for p in root.iterdir() if p.name.endswith(".toml"))
 
 
-def load_scene(ref: str | Path) -> Scene:
-    """Load a scene by built-in name or file path, parse it and validate it (also compiles it once)."""
+def load_scene(ref: str | Path) -> System:
+    """A scene by built-in name or file path, read, checked and compiled."""
+    return compile_scene(read_scene(ref))
+
+
+def read_scene(ref: str | Path) -> Scene:
+    """A scene's raw tables by built-in name or file path (TOML parsed, name checked; nothing compiled)."""
     path = Path(ref)
     if path.suffix == ".toml" or path.exists():
         if not path.is_file():
@@ -166,9 +175,7 @@ def load_scene(ref: str | Path) -> Scene:
     if "name" in data and not (isinstance(data["name"], str) and PLAIN_NAME.fullmatch(data["name"])):
         raise SceneError(f"{source}: 'name' must be a plain name of letters, digits, '.', '_' and '-' "
                          f"(it names output files), got {data['name']!r}")
-    scene = Scene(str(data.get("name", file_stem(name))), source, base, data)
-    compile_scene(scene)   # validate everything now, so errors appear at load time
-    return scene
+    return Scene(str(data.get("name", file_stem(name))), source, base, data)
 
 
 def _read(path: Path) -> str:
@@ -237,26 +244,44 @@ def _mesh(chk: _Tables, tbl, where, dim, base_dir) -> meshlib.Mesh:
             return meshlib.from_file(str(p), dim, chk.number(tbl, "scale", where, default=1.0, lo=0, lo_open=True))
         except meshlib.MeshError as exc:
             chk.fail(where, str(exc))
-    # explicit
-    try:
-        nodes = np.array(tbl["nodes"], float)
-        cells = np.array(tbl.get("cells", []), np.int64).reshape(-1, dim + 1)
-        edges = (np.array(tbl["edges"], np.int64).reshape(-1, 2) if "edges" in tbl
-                 else meshlib.edges_of_cells(cells))
-    except (ValueError, TypeError):
-        chk.fail(where, f"'nodes' must be rows of {dim} numbers, 'edges' rows of 2 and 'cells' rows of {dim + 1} integers")
-    if nodes.ndim != 2 or nodes.shape[1] != dim:
+    # explicit: every index an integer (1.9 is refused, not truncated), every coordinate a number
+    nodes = np.array(_rows(chk, tbl["nodes"], where, "nodes", dim, (int, float), "numbers"), float).reshape(-1, dim)
+    cells = np.array(_rows(chk, tbl.get("cells", []), where, "cells", dim + 1, int, "node indices"),
+                     np.int64).reshape(-1, dim + 1)
+    edges = (np.array(_rows(chk, tbl["edges"], where, "edges", 2, int, "node indices"), np.int64).reshape(-1, 2)
+             if "edges" in tbl else meshlib.edges_of_cells(cells))
+    if len(nodes) == 0:
         chk.fail(where, f"'nodes' must be rows of {dim} numbers")
     return meshlib.Mesh(nodes, edges, cells)
+
+
+def _rows(chk: _Tables, val, where, key, width, types, what) -> list:
+    """`val` as a flat list: a list of rows of `width` entries (or one flat list of them), each entry of
+    `types` (never a bool): indices must be integers, not numbers that would be truncated."""
+    if not isinstance(val, list):
+        chk.fail(where, f"'{key}' must be a list of rows of {width} {what}, got {val!r}")
+    flat = []
+    for r, row in enumerate(val):
+        entries = row if isinstance(row, list) else [row]
+        if isinstance(row, list) and len(row) != width:
+            chk.fail(where, f"'{key}' must be rows of {width} {what}: row {r} is {row!r}")
+        for v in entries:
+            if isinstance(v, bool) or not isinstance(v, types):
+                chk.fail(where, f"'{key}' row {r}: {v!r} is not {'an integer' if types is int else 'a number'} "
+                                f"({key} are rows of {width} {what})")
+        flat += entries
+    if len(flat) % width:
+        chk.fail(where, f"'{key}' must be rows of {width} {what}, got {len(flat)} entries")
+    return flat
 
 
 def _material(chk: _Tables, tbl, where) -> dict:
     chk.keys(tbl, where, (), _MATERIAL_KEYS)
     mat = {}
     if "preset" in tbl:
-        if not isinstance(tbl["preset"], str) or tbl["preset"] not in PRESETS:
-            chk.fail(where, f"unknown preset {tbl['preset']!r} (known: {', '.join(PRESETS)})")
-        mat.update(PRESETS[tbl["preset"]])
+        if not isinstance(tbl["preset"], str) or tbl["preset"] not in MATERIALS:
+            chk.fail(where, f"unknown preset {tbl['preset']!r} (known: {', '.join(MATERIALS)})")
+        mat.update(MATERIALS[tbl["preset"]])
     user_nl = [k for k in _NONLINEAR if k in tbl]
     if "c2" in tbl and user_nl:
         chk.fail(where, f"give either a constant 'c2' or a nonlinear damper ({', '.join(_NONLINEAR)}), not both")
@@ -329,7 +354,7 @@ def compile_scene(scene: Scene) -> System:
     chk = _Tables(scene.source)
     d = scene.data
     chk.keys(d, "", ("dim", "integrator", "objects"),
-             ("name", "description", "world", "topology", "collision", "loads", "formats"))
+             ("name", "description", "world", "topology", "collision", "loads", "formats", "probe"))
     dim = d["dim"]
     if isinstance(dim, bool) or not isinstance(dim, int) or dim not in (2, 3):
         chk.fail("", f"'dim' must be 2 or 3, got {dim!r}")
@@ -359,15 +384,13 @@ def compile_scene(scene: Scene) -> System:
     objs = d["objects"]
     if not isinstance(objs, list) or not objs:
         chk.fail("objects", "need at least one [[objects]] table")
-    nodes, vel, mass, pinned, edges, cells, a0 = [], [], [], [], [], [], []
-    params = {k: [] for k in ("k1", "c1", "a_min", "a_max", "L", "c_min", "c_max", "f1", "f2")}
-    node_object, cell_object, names, materials, local = [], [], [], [], []
-    offset = 0
+    builder = SystemBuilder(dim)
+    local, starts = [], []
     for o, obj in enumerate(objs):
         where = f"objects.{o}"
         chk.keys(obj, where, ("mesh", "material"), ("name", "position", "velocity", "pinned", "masses"))
         name = obj.get("name", f"object{o}")
-        if not isinstance(name, str) or name in names:
+        if not isinstance(name, str) or name in builder.names:
             chk.fail(where, f"'name' must be a unique string, got {name!r}")
         m = _mesh(chk, obj["mesh"], f"{where}.mesh", dim, scene.base_dir)
         try:
@@ -397,74 +420,35 @@ def compile_scene(scene: Scene) -> System:
         if "pinned" in obj:
             pin[_selection(chk, obj["pinned"], where, "pinned", m.nodes)] = True
         pos = chk.vector(obj, "position", where, dim, default=np.zeros(dim))
+        vel = chk.vector(obj, "velocity", where, dim, default=np.zeros(dim))
         local.append(m.nodes)
-        nodes.append(m.nodes + pos)
-        v_obj = np.tile(chk.vector(obj, "velocity", where, dim, default=np.zeros(dim)), (n, 1))
-        v_obj[pin] = 0.0                     # pinned nodes keep v = 0 from the first step on (MODEL.md 5)
-        vel.append(v_obj)
-        mass.append(mnode)
-        pinned.append(pin)
-        edges.append(m.edges + offset)
-        cells.append(m.cells + offset)
-        l0 = np.linalg.norm(m.nodes[m.edges[:, 1]] - m.nodes[m.edges[:, 0]], axis=1)
-        E = len(m.edges)
-        a0.append(np.full(E, mat["a0"]))
-        params["L"].append(mat["a0"] * l0)
-        for k in ("k1", "c1", "a_min", "a_max"):
-            params[k].append(np.full(E, mat[k]))
-        if "c2" in mat:
-            for k, val in (("c_min", mat["c2"]), ("c_max", mat["c2"]), ("f1", 0.0), ("f2", 1.0)):
-                params[k].append(np.full(E, val))
-        else:
-            for k in _NONLINEAR:
-                params[k].append(np.full(E, mat[k]))
-        node_object.append(np.full(n, o))
-        cell_object.append(np.full(len(m.cells), o))
-        names.append(name)
-        materials.append(mat)
-        offset += n
-
-    cat = np.concatenate
-    x0, all_edges, all_cells = cat(nodes), cat(edges), cat(cells).reshape(-1, dim + 1)
-    N = len(x0)
-    elem = ElementParams.build(**{k: cat(v) for k, v in params.items()})
+        starts.append(builder.add_object(name, m, mat, mnode, pin, pos, vel))
+    names = builder.names
 
     topology = None
     if "topology" in d:
         tp = d["topology"]
         chk.keys(tp, "topology", ("K", "C", "eps"), ("enabled",))
         if chk.boolean(tp, "enabled", "topology", True):
-            topology = Topology(meshlib.topology_pairs(all_cells, x0),
-                                chk.number(tp, "K", "topology", lo=0, lo_open=True),
-                                chk.number(tp, "C", "topology", lo=0),
-                                chk.number(tp, "eps", "topology", lo=0))
+            topology = TopologySpec(chk.number(tp, "K", "topology", lo=0, lo_open=True),
+                                    chk.number(tp, "C", "topology", lo=0),
+                                    chk.number(tp, "eps", "topology", lo=0))
 
     collision = None
     if "collision" in d:
         co = d["collision"]
         chk.keys(co, "collision", ("K", "threshold"), ("enabled", "C", "mu", "k_f"))
         if chk.boolean(co, "enabled", "collision", True):
-            faces, _ = meshlib.boundary_faces(all_cells, x0)
-            keys = cat([all_edges[:, 0] * N + all_edges[:, 1], all_edges[:, 1] * N + all_edges[:, 0]])
-            collision = Collision(np.unique(faces), faces, np.sort(keys), N,
-                                  chk.number(co, "K", "collision", lo=0, lo_open=True),
-                                  chk.number(co, "C", "collision", default=0.0, lo=0),
-                                  chk.number(co, "threshold", "collision", lo=0, lo_open=True),
-                                  chk.number(co, "mu", "collision", default=0.0, lo=0),
-                                  chk.number(co, "k_f", "collision", default=math.nan, lo=0, lo_open=True))
-
-    # default friction regularisation: half the explicit limit of the slip damper. On the floor the limit is
-    # 2 m / dt (one node); a vertex-facet pair moves both sides (relative mobility up to 2 / m): m / dt
-    m_min = float(cat(mass).min())
-    for holder, kf_default in ((floor, m_min / dt), (collision, m_min / (2.0 * dt))):
-        if holder is not None and math.isnan(holder.k_f):
-            holder.k_f = kf_default
+            collision = CollisionSpec(chk.number(co, "K", "collision", lo=0, lo_open=True),
+                                      chk.number(co, "C", "collision", default=0.0, lo=0),
+                                      chk.number(co, "threshold", "collision", lo=0, lo_open=True),
+                                      chk.number(co, "mu", "collision", default=0.0, lo=0),
+                                      chk.number(co, "k_f", "collision", default=math.nan, lo=0, lo_open=True))
 
     loads = []
     lds = d.get("loads", [])
     if not isinstance(lds, list):
         chk.fail("loads", "must be an array of tables ([[loads]])")
-    starts = np.cumsum([0] + [len(n) for n in nodes])
     for q, ld in enumerate(lds):
         where = f"loads.{q}"
         chk.keys(ld, where, ("nodes", "force"), ("object", "start", "end"))
@@ -479,13 +463,25 @@ def compile_scene(scene: Scene) -> System:
             chk.fail(where, f"'end' ({end:g}) must be after 'start' ({start:g})")
         loads.append(Load(sel, chk.vector(ld, "force", where, dim), start, end))
 
+    probe = _probe(chk, d["probe"], dim, n_steps * dt) if "probe" in d else None
+
     formats = d.get("formats", {})
-    if formats:
-        from hw.formats import check_overrides       # number formats are defined in hw/formats.py
-        try:
-            check_overrides(formats)
-        except ValueError as exc:
-            chk.fail("formats", str(exc))
-    return System(scene.name, dim, x0, cat(vel), cat(mass), cat(pinned), all_edges, cat(a0), elem,
-                  all_cells, cat(node_object), cat(cell_object).astype(np.int64), names, gravity, dt,
-                  n_steps, every, floor, topology, collision, loads, materials, dict(formats))
+    if not isinstance(formats, dict):
+        chk.fail("formats", "must be a table of quantity = \"SQ(i, f)\"")
+    return builder.build(scene.name, gravity, dt, n_steps, every, floor, topology, collision, loads, formats,
+                         description=scene.description, probe=probe)
+
+
+def _probe(chk: _Tables, tbl, dim: int, duration: float) -> Probe:
+    """[probe]: the haptic probe (MODEL.md 4b) and its design poke."""
+    w = "probe"
+    chk.keys(tbl, w, ("radius", "K", "position"), ("C", "mu", "k_f", "steps_per_sample", "depth", "poke_time"))
+    return Probe(chk.number(tbl, "radius", w, lo=0, lo_open=True),
+                 chk.number(tbl, "K", w, lo=0, lo_open=True),
+                 chk.number(tbl, "C", w, default=0.0, lo=0),
+                 chk.number(tbl, "mu", w, default=0.0, lo=0),
+                 chk.number(tbl, "k_f", w, default=math.nan, lo=0, lo_open=True),
+                 chk.integer(tbl, "steps_per_sample", w, default=10),
+                 chk.vector(tbl, "position", w, dim),
+                 chk.number(tbl, "depth", w, default=0.0, lo=0),
+                 chk.number(tbl, "poke_time", w, default=0.5 * duration, lo=0, lo_open=True))

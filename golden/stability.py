@@ -1,6 +1,6 @@
-"""Stability of the explicit scheme (MODEL.md section 7): predicted dt limit, measured limit, watchdog.
+"""Stability of the explicit scheme (MODEL.md section 7): the predicted dt limit of a scene.
 
-predict(sys) -> dict
+predict(system) -> dict
     The largest dt at which the symplectic Euler step of MODEL.md section 5 is predicted to be stable.
     dt_pred = min(node bound, element bound).
 
@@ -21,8 +21,10 @@ predict(sys) -> dict
     * contact mode, for a node that can touch a contact: the stiffest single contact it can make,
       floor (K, C) on a free surface node, one vertex-facet collision (2 K, 2 C) on a free surface node,
       one topology-preservation pair (2 K, 2 C) on a free cell node (2 K, 2 C is the Gershgorin sum over a
-      vertex and its facet, whose weights add up to 1), plus the node's own element terms with weight 1,
-      along the floor normal (or lambda_max for the other contacts). A contact (K = 1e3..1e4) is far
+      vertex and its facet, whose weights add up to 1), the haptic probe (K, C) on any free node (it
+      touches nodes, not a surface: a static-law contact like the floor, MODEL.md 4b), plus the node's own
+      element terms with weight 1, along the floor normal (or lambda_max for the other contacts, the
+      probe's normal pointing anywhere). A contact (K = 1e3..1e4) is far
       stiffer than the elements around it (k1 = 50..2000), so its fastest mode sits on the contact node
       and its neighbours follow it only by k1 / K; adding the contact to the mesh mode's Gershgorin sum
       would add up the damping of two different modes.
@@ -61,41 +63,21 @@ predict(sys) -> dict
     2 m / k_f ("friction_dt", with the same Gershgorin sums); its force is capped at mu N, so above that
     it chatters with a slip speed of about mu N dt / m instead of diverging. Not part of dt_pred.
 
-measure(sys) -> dict
-    The real limit, by bisection on dt of real runs of golden.model.Golden (see measure, trial).
-
-EnergyWatch(sys)
-    Divergence watchdog for any golden run, checked once per output frame. In golden.model.simulate:
-
-        watch = EnergyWatch(sys)                       # before the frame loop
-        ...
-        watch.check(State(x=xs[f], v=vs[f], a=as_[f], step=st.step))   # after recording frame f
-                                                       # (it also covers check_finite)
-
-    It raises golden.model.SimulationDiverged when the state is not finite, a node is further than
-    BOX x the scene size from its centre, or the mechanical energy (kinetic + k1 s^2 / 2 + penalty) is
-    above GROWTH x the work bound (initial energy + gravity and loads acting over the scene size).
+The measured limit (bisection on real runs) is golden/measure.py; the divergence watchdog of every run
+is golden/watchdog.py.
 """
 from __future__ import annotations
 
-import dataclasses
 import math
-import time
 
 import numpy as np
 
-from .model import Golden, SimulationDiverged, State, System
+from .system import System
 
-GROWTH = 1e3          # energy above GROWTH x the work bound counts as divergence
-BOX = 1e3             # positions further than BOX x the scene size from its centre: divergence
 C2_GRID = 9           # c2 values (log spaced over [c_t_min, c_max]) tried for a nonlinear damper
-MAX_STEPS = 20_000    # default cap on the steps of one measuring trial
 PATCH_DOFS = 3000     # mesh_factor solves larger components on a patch of about this many DOFs
 PATCH_MARGIN = 0.02   # ... and raises the patch eigenvalue by this fraction
 MESH_MARGIN = 0.2     # element terms x min(1, (1 + MESH_MARGIN) x mesh factor): deformed shapes differ
-PERTURB = 1e-6        # initial random displacement of the free nodes in measuring runs, x scene size
-LOCAL = 10.0          # a trial is unstable when its energy exceeds LOCAL x the reference run near that time
-FLOOR = 1e-3          # ... plus FLOOR x the peak energy of the reference run
 
 # ---------------------------------------------------------------- closed forms
 
@@ -109,11 +91,17 @@ def voigt_limit(k, c, m):
         return np.where(den > 0, 4.0 * m / np.where(den > 0, den, 1.0), np.inf)
 
 
-def _first_root(beta, disc):
-    """4 / (beta + sqrt(disc)) where disc >= 0, else inf (no crossing)."""
-    ok = disc >= 0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = 4.0 / (beta + np.sqrt(np.where(ok, disc, 0.0)))
+def _first_root(beta, c):
+    """4 / (beta + sqrt(beta^2 + c)) where beta^2 + c >= 0, else inf (no crossing). Computed on beta and c
+    scaled by s = max(|beta|, sqrt|c|), so that the coefficients of a stiff element or a light node (beta
+    of 1e160 and more) do not overflow beta^2 into inf, which would read as "no bound"."""
+    beta, c = np.broadcast_arrays(np.asarray(beta, float), np.asarray(c, float))
+    s = np.maximum(np.abs(beta), np.sqrt(np.abs(c)))
+    with np.errstate(divide="ignore", invalid="ignore"):     # s = 0 (no element): nan, taken as no crossing
+        b, cs = beta / s, c / s / s
+        disc = b * b + cs
+        ok = disc >= 0
+        r = 4.0 / (s * (b + np.sqrt(np.where(ok, disc, 0.0))))
     return np.where(ok & (r > 0), r, np.inf)
 
 
@@ -134,10 +122,10 @@ def three_element_limit(m, k1, c1, c2, a=1.0, cp=0.0):
     beta = kap + cv / m
     P = (cv * kap + cs * c2 / G) / m
     Q = a * cs / m
-    h1 = _first_root(beta, beta * beta + 4.0 * (2.0 * Q - P))
+    h1 = _first_root(beta, 4.0 * (2.0 * Q - P))
     with np.errstate(divide="ignore", invalid="ignore"):
         h2 = np.where(P - Q > 0, beta / np.where(P - Q > 0, P - Q, 1.0), np.inf)
-    h3 = _first_root(beta, beta * beta - 8.0 * (P - Q))
+    h3 = _first_root(beta, -8.0 * (P - Q))
     return np.minimum(np.minimum(h1, h2), h3)
 
 
@@ -204,32 +192,32 @@ def node_three_element_limit(m, kp, cp, k1, c1, c2, a):
 
 # ---------------------------------------------------------------- prediction
 
-def _per_element(sys: System, name: str) -> np.ndarray:
-    return np.broadcast_to(np.asarray(getattr(sys.elem, name), float), (sys.n_elements,))
+def _per_element(system: System, name: str) -> np.ndarray:
+    return np.broadcast_to(np.asarray(getattr(system.elem, name), float), (system.n_elements,))
 
 
-def tangent_c_min(sys: System) -> np.ndarray:
+def tangent_c_min(system: System) -> np.ndarray:
     """Per element (E,): the smallest tangent damping of its damper, MODEL.md 7.
 
     The damper's tangent damping is c_t = dT/dw' = c2 / (1 + B |T|) between f1 and f2 (w' = T / c2(|T|)
     = T exp(B |T|) / A there, so dw'/dT = (1 + B |T|) / c2) and c2 itself outside; its smallest value is
     c_min / (1 + B f2), just below f2, with B = ln(c_max / c_min) / (f2 - f1) and f2 = ln(A / c_min) / B,
     i.e. B f2 = ln(A / c_min). A constant damper (c_min = c_max, B = 0) gives c_min."""
-    c_min = _per_element(sys, "c_min")
-    c_max = _per_element(sys, "c_max")
-    A, B = _per_element(sys, "A"), _per_element(sys, "B")
+    c_min = _per_element(system, "c_min")
+    c_max = _per_element(system, "c_max")
+    A, B = _per_element(system, "A"), _per_element(system, "B")
     varies = (c_max > c_min) & (B > 0)
     with np.errstate(divide="ignore", invalid="ignore"):
         bf2 = np.where(varies, np.log(np.where(varies, A / c_min, 1.0)), 0.0)      # B f2
     return c_min / (1.0 + np.maximum(bf2, 0.0))
 
 
-def _boundary_nodes(sys: System) -> np.ndarray:
+def _boundary_nodes(system: System) -> np.ndarray:
     """Nodes that can touch the floor: nodes of the facets that belong to one cell only, and every node
     that is in no cell (facets keyed as integers: faster than a row-wise unique)."""
-    N = sys.n_nodes
+    N = system.n_nodes
     on = np.ones(N, bool)
-    cells = sys.cells
+    cells = system.cells
     if len(cells):
         D1 = cells.shape[1]
         faces = np.concatenate([np.delete(cells, k, axis=1) for k in range(D1)])
@@ -258,12 +246,12 @@ def _boundary_nodes(sys: System) -> np.ndarray:
 class _Geometry:
     """Element directions at rest and the two ends of every element, for per-node sums."""
 
-    def __init__(self, sys: System):
-        self.N, self.D = sys.n_nodes, sys.dim
-        self.m = np.asarray(sys.mass, float)
-        self.free = ~np.asarray(sys.pinned, bool)
-        i, j = sys.edges[:, 0], sys.edges[:, 1]
-        d = sys.x0[j] - sys.x0[i]
+    def __init__(self, system: System):
+        self.N, self.D = system.n_nodes, system.dim
+        self.m = np.asarray(system.mass, float)
+        self.free = ~np.asarray(system.pinned, bool)
+        i, j = system.edges[:, 0], system.edges[:, 1]
+        d = system.x0[j] - system.x0[i]
         e = d / np.linalg.norm(d, axis=1)[:, None]
         self.ends = np.concatenate([i, j])                 # the node receiving the term
         self.other = np.concatenate([j, i])
@@ -320,7 +308,7 @@ class _Geometry:
         return np.bincount(self.ends, weights=np.asarray(values, float)[self.elem], minlength=self.N)
 
 
-def mesh_factor(sys: System, geo: _Geometry | None = None) -> np.ndarray:
+def mesh_factor(system: System, geo: _Geometry | None = None) -> np.ndarray:
     """Per node phi <= 1: the exact largest eigenvalue of the unit-weight, mass-scaled element operator
     M^-1/2 (sum_e g_e g_e^T) M^-1/2 of the node's connected component, over the largest per-node Gershgorin
     value lambda_max(sum_e w e e^T) / m_i (w = 1 + m_i / m_j) in that component. The Gershgorin sum assumes
@@ -332,11 +320,11 @@ def mesh_factor(sys: System, geo: _Geometry | None = None) -> np.ndarray:
     bound by interlacing, within about 1 % of the whole for a uniform mesh), raised by PATCH_MARGIN."""
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
-    geo = _Geometry(sys) if geo is None else geo
+    geo = _Geometry(system) if geo is None else geo
     N, D, free, m = geo.N, geo.D, geo.free, geo.m
-    lam_node = geo.lmax(geo.weights(), np.ones(sys.n_elements)) / m
+    lam_node = geo.lmax(geo.weights(), np.ones(system.n_elements)) / m
     phi = np.ones(N)
-    i, j = sys.edges[:, 0], sys.edges[:, 1]
+    i, j = system.edges[:, 0], system.edges[:, 1]
     both = free[i] & free[j]
     adj = sp.coo_matrix((np.ones(int(both.sum())), (i[both], j[both])), shape=(N, N)).tocsr()
     adj = (adj + adj.T).tocsr()
@@ -354,7 +342,7 @@ def mesh_factor(sys: System, geo: _Geometry | None = None) -> np.ndarray:
         patch = nodes
         if nodes.size * D > PATCH_DOFS:
             patch = _patch(adj, nodes[np.argsort(lam_node[nodes])[-3:]], PATCH_DOFS // D)
-        sub = _unit_operator(sys, geo, np.sort(patch))
+        sub = _unit_operator(system, geo, np.sort(patch))
         dofs = sub.shape[0]
         if dofs <= 48:     # dense LAPACK only for tiny blocks: threaded BLAS is slow on busy machines
             lam = float(np.linalg.eigvalsh(sub.toarray())[-1])
@@ -370,14 +358,14 @@ def mesh_factor(sys: System, geo: _Geometry | None = None) -> np.ndarray:
     return phi
 
 
-def _unit_operator(sys: System, geo: _Geometry, nodes: np.ndarray):
+def _unit_operator(system: System, geo: _Geometry, nodes: np.ndarray):
     """Principal submatrix, on the DOFs of the (free, sorted) nodes, of the unit-weight mass-scaled
     element operator M^-1/2 (sum_e g_e g_e^T) M^-1/2 (g_e = e at the end node, -e at the start node)."""
     import scipy.sparse as sp
     N, D = geo.N, geo.D
     loc = np.full(N, -1)
     loc[nodes] = np.arange(len(nodes))
-    i, j = sys.edges[:, 0], sys.edges[:, 1]
+    i, j = system.edges[:, 0], system.edges[:, 1]
     keep = (loc[i] >= 0) | (loc[j] >= 0)
     i, j, e = i[keep], j[keep], geo.e[keep]
     rows, cols, vals = [], [], []
@@ -409,50 +397,57 @@ def _patch(adj, seeds, max_nodes: int) -> np.ndarray:
     return np.flatnonzero(inside)
 
 
-def node_terms(sys: System) -> dict:
+def node_terms(system: System) -> dict:
     """Per-node (N,) scalars of the node model: mass; penalty (kp, cp) of the stiffest single contact
     the node can make; fixed-a Voigt elements (kf, cf); moving-a three-element elements (k1, c1, c2 on a
     grid over [c_t_min, c_max], c_t_min = c_min / (1 + B f2) the smallest tangent damping, MODEL.md 7).
     Element terms are directional Gershgorin sums (balanced weights, see _Geometry.weights) scaled by
     min(1, (1 + MESH_MARGIN) x mesh_factor)."""
-    geo = _Geometry(sys)
+    geo = _Geometry(system)
     N, free, m = geo.N, geo.free, geo.m
-    k1, c1 = _per_element(sys, "k1"), _per_element(sys, "c1")
-    a_min, a_max = _per_element(sys, "a_min"), _per_element(sys, "a_max")
-    c_max = _per_element(sys, "c_max")
-    c_lo = tangent_c_min(sys)                              # smallest tangent damping of each damper
-    moving = (not sys.elem.fixed_a) & (a_max > a_min)      # elements with an a state
+    k1, c1 = _per_element(system, "k1"), _per_element(system, "c1")
+    a_min, a_max = _per_element(system, "a_min"), _per_element(system, "a_max")
+    c_max = _per_element(system, "c_max")
+    c_lo = tangent_c_min(system)                              # smallest tangent damping of each damper
+    moving = (not system.elem.fixed_a) & (a_max > a_min)      # elements with an a state
     fixed = ~moving
     t = {"m": m, "free": free}
 
     # penalty terms that can touch the node: the stiffest single contact among the floor (K, C), one
-    # vertex-facet collision and one topology-preservation pair (2 K, 2 C: the Gershgorin sum over the
-    # vertex and its facet, whose weights add up to 1)
+    # vertex-facet collision, the probe (K, C: any node) and one topology-preservation pair (2 K, 2 C: the
+    # Gershgorin sum over the vertex and its facet, whose weights add up to 1)
     zeros = np.zeros(N)
-    for name in ("k_floor", "c_floor", "k_collision", "c_collision", "k_topology", "c_topology", "friction"):
+    for name in ("k_floor", "c_floor", "k_collision", "c_collision", "k_topology", "c_topology", "k_probe",
+                 "c_probe", "friction"):
         t[name] = zeros.copy()
-    if sys.floor is not None:
-        b = _boundary_nodes(sys) & free
-        t["k_floor"][b] = sys.floor.K
-        t["c_floor"][b] = sys.floor.C
-        if sys.floor.mu > 0:
-            t["friction"][b] = np.maximum(t["friction"][b], sys.floor.k_f)
-    if sys.collision is not None and len(sys.collision.facets):
+    if system.floor is not None:
+        b = _boundary_nodes(system) & free
+        t["k_floor"][b] = system.floor.K
+        t["c_floor"][b] = system.floor.C
+        if system.floor.mu > 0:
+            t["friction"][b] = np.maximum(t["friction"][b], system.floor.k_f)
+    if system.collision is not None and len(system.collision.facets):
         on = np.zeros(N, bool)
-        on[sys.collision.vertices] = True
-        on[sys.collision.facets.ravel()] = True
+        on[system.collision.vertices] = True
+        on[system.collision.facets.ravel()] = True
         on &= free
-        t["k_collision"][on] = 2.0 * sys.collision.K
-        t["c_collision"][on] = 2.0 * sys.collision.C
-        if sys.collision.mu > 0:
-            t["friction"][on] = np.maximum(t["friction"][on], 2.0 * sys.collision.k_f)
-    if sys.topology is not None and len(sys.topology.pairs):
+        t["k_collision"][on] = 2.0 * system.collision.K
+        t["c_collision"][on] = 2.0 * system.collision.C
+        if system.collision.mu > 0:
+            t["friction"][on] = np.maximum(t["friction"][on], 2.0 * system.collision.k_f)
+    if system.topology is not None and len(system.topology.pairs):
         on = np.zeros(N, bool)
-        on[sys.topology.pairs.ravel()] = True
+        on[system.topology.pairs.ravel()] = True
         on &= free
-        t["k_topology"][on] = 2.0 * sys.topology.K
-        t["c_topology"][on] = 2.0 * sys.topology.C
-    kinds = ("floor", "collision", "topology")
+        t["k_topology"][on] = 2.0 * system.topology.K
+        t["c_topology"][on] = 2.0 * system.topology.C
+    if system.probe is not None:
+        pb = system.probe
+        t["k_probe"][free] = pb.K
+        t["c_probe"][free] = pb.C
+        if pb.mu > 0:
+            t["friction"][free] = np.maximum(t["friction"][free], pb.k_f)
+    kinds = ("floor", "collision", "topology", "probe")
     K = np.stack([t[f"k_{k}"] for k in kinds])
     C = np.stack([t[f"c_{k}"] for k in kinds])
     pick = np.argmax(K, 0)
@@ -466,11 +461,11 @@ def node_terms(sys: System) -> dict:
     cmax = np.maximum(np.maximum(c1 * a_max, c1), np.where(moving, c_max, 0.0))
     wk = geo.weights(geo.total(kmax))        # plain sums: the mass ratio enters once, in weights()
     wc = geo.weights(geo.total(cmax))
-    phi = mesh_factor(sys, geo)
+    phi = mesh_factor(system, geo)
     t["phi"] = phi
     scale = np.minimum(1.0, (1.0 + MESH_MARGIN) * phi)
     t["scale"] = scale
-    grid = np.linspace(0.0, 1.0, C2_GRID) if sys.elem.nonlinear else np.zeros(1)
+    grid = np.linspace(0.0, 1.0, C2_GRID) if system.elem.nonlinear else np.zeros(1)
     t["c2_values"] = [float(np.median(c_lo[moving] ** (1 - g) * c_max[moving] ** g)) if moving.any() else 0.0
                       for g in grid]
     c2s = [c_lo ** (1 - g) * c_max ** g for g in grid]
@@ -514,14 +509,14 @@ def node_terms(sys: System) -> dict:
     return t
 
 
-def node_limits(sys: System, t: dict | None = None):
+def node_limits(system: System, t: dict | None = None):
     """Per-node predicted limit (N,), the index of the case that sets it, and the case names.
 
     Cases: the mesh mode and, for nodes that can touch a contact, the contact mode; each as a Voigt node
     when the node has no a state, else as the three-element node model with a free at a_max and at a_min,
     for every c2 on the grid over [c_t_min, c_max] (tangent damping, MODEL.md 7). Nodes with identical
     parameters are evaluated once."""
-    t = node_terms(sys) if t is None else t
+    t = node_terms(system) if t is None else t
     m, free = t["m"], t["free"]
     modes = (("mesh mode", t["mesh"], free), ("contact mode", t["touch"], t["has_contact"]))
     G = len(t["c2_values"])
@@ -563,24 +558,24 @@ def node_limits(sys: System, t: dict | None = None):
     return out, case, cases
 
 
-def element_limits(sys: System) -> np.ndarray:
+def element_limits(system: System) -> np.ndarray:
     """Per-element bound on the a state, dt < 2 (c1 + c_t_min) / k1 (inf without an a state or k1 = 0),
     with c_t_min = c_min / (1 + B f2) the damper's smallest tangent damping (MODEL.md 7; c2 for a constant
     damper): linearised, a relaxes with rate k1 / (c1 + c_t)."""
-    k1, c1 = _per_element(sys, "k1"), _per_element(sys, "c1")
-    a_min, a_max = _per_element(sys, "a_min"), _per_element(sys, "a_max")
-    c_lo = tangent_c_min(sys)
-    moving = (not sys.elem.fixed_a) & (a_max > a_min) & (k1 > 0)
-    out = np.full(sys.n_elements, np.inf)
+    k1, c1 = _per_element(system, "k1"), _per_element(system, "c1")
+    a_min, a_max = _per_element(system, "a_min"), _per_element(system, "a_max")
+    c_lo = tangent_c_min(system)
+    moving = (not system.elem.fixed_a) & (a_max > a_min) & (k1 > 0)
+    out = np.full(system.n_elements, np.inf)
     out[moving] = 2.0 * (c1[moving] + c_lo[moving]) / k1[moving]
     return out
 
 
-def predict(sys: System) -> dict:
+def predict(system: System) -> dict:
     """The predicted largest stable dt of the scene, its limiting node or element and its parts."""
-    t = node_terms(sys)
-    nl, case, cases = node_limits(sys, t)
-    el = element_limits(sys)
+    t = node_terms(system)
+    nl, case, cases = node_limits(system, t)
+    el = element_limits(system)
     n_at = int(np.argmin(nl)) if len(nl) else 0
     e_at = int(np.argmin(el)) if len(el) else 0
     node_bound = float(nl[n_at]) if len(nl) else math.inf
@@ -607,9 +602,9 @@ def predict(sys: System) -> dict:
         g = int(np.argmin(np.abs(np.array(t["c2_values"]) - float(name.rsplit("= ", 1)[-1])))) if "c2 =" in name else 0
         parts["c2_elements"] = float(tm["c2"][g][i])
     if len(el) and np.isfinite(element_bound):
-        parts.update(element_k1=float(_per_element(sys, "k1")[e_at]), element_c1=float(_per_element(sys, "c1")[e_at]),
-                     element_c_min=float(_per_element(sys, "c_min")[e_at]),
-                     element_c_t_min=float(tangent_c_min(sys)[e_at]))
+        parts.update(element_k1=float(_per_element(system, "k1")[e_at]), element_c1=float(_per_element(system, "c1")[e_at]),
+                     element_c_min=float(_per_element(system, "c_min")[e_at]),
+                     element_c_t_min=float(tangent_c_min(system)[e_at]))
     fr = t["friction"] > 0
     friction_dt = float(np.min(2.0 * t["m"][fr] / t["friction"][fr])) if fr.any() else math.inf
     clamped = voigt_limit(t["k_clamped"], t["c_clamped"], t["m"])
@@ -624,328 +619,5 @@ def predict(sys: System) -> dict:
                      f"its force is capped at mu N, so above that it chatters (slip speed ~ mu N dt / m) "
                      f"instead of diverging; not part of dt_pred")
     return {"dt_pred": dt_pred, "limiting": limiting, "node_bound": node_bound, "element_bound": element_bound,
-            "dt": float(sys.dt), "margin": dt_pred / float(sys.dt), "parts": parts,
+            "dt": float(system.dt), "margin": dt_pred / float(system.dt), "parts": parts,
             "friction_dt": friction_dt, "clamped_dt": clamped_dt, "notes": notes}
-
-
-# ---------------------------------------------------------------- energy and divergence
-
-def scene_size(sys: System) -> float:
-    ext = float(np.max(np.ptp(sys.x0, axis=0))) if sys.n_nodes > 1 else 0.0
-    if sys.floor is not None:
-        ext = max(ext, float(np.max(sys.x0[:, -1]) - sys.floor.height))
-    return ext if ext > 0 else 1.0
-
-
-def mechanical_energy(sys: System, x, v, a) -> float:
-    """Kinetic + element spring energy k1 s^2 / 2 + penalty energy (floor, topology, collision)."""
-    x = np.asarray(x, float)
-    v = np.asarray(v, float)
-    free = ~sys.pinned
-    E = 0.5 * float(np.sum(sys.mass[free] * np.einsum("ij,ij->i", v[free], v[free])))
-    d = x[sys.edges[:, 1]] - x[sys.edges[:, 0]]
-    l = np.sqrt(np.einsum("ij,ij->i", d, d))
-    s = a * l - sys.elem.L
-    E += 0.5 * float(np.sum(sys.elem.k1 * s * s))
-    if sys.floor is not None:
-        h = x[:, -1] - sys.floor.height
-        pen = h[h < 0]
-        E += 0.5 * sys.floor.K * float(pen @ pen)
-    if sys.topology is not None and len(sys.topology.pairs):
-        from .topology import facet_frame
-        tp = sys.topology
-        xf = x[tp.pairs[:, 1:]]
-        n = facet_frame(xf)
-        dd = np.einsum("ij,ij->i", x[tp.pairs[:, 0]] - xf[:, 0], n) - tp.eps
-        pen = dd[dd < 0]
-        E += 0.5 * tp.K * float(pen @ pen)
-    if sys.collision is not None and len(sys.collision.facets):
-        E += _collision_energy(sys.collision, x)
-    return E
-
-
-def _collision_energy(col, x) -> float:
-    """Penalty energy K (h - d)^2 / 2 of the vertex-facet contacts the collision forces would use."""
-    from .topology import facet_frame, foot_weights
-    vi, fi = col.candidates(x)
-    node, fn = col.vertices[vi], col.facets[fi]
-    keep = ~col._excluded(node, fn)
-    node, fn = node[keep], fn[keep]
-    if node.size == 0:
-        return 0.0
-    xf = x[fn]
-    n = -facet_frame(xf) if x.shape[1] == 2 else facet_frame(xf)
-    d = np.einsum("ij,ij->i", x[node] - xf[:, 0], n)
-    near = np.abs(d) <= col.threshold
-    if not near.any():
-        return 0.0
-    w = foot_weights(x[node[near]], xf[near], n[near])
-    on = np.all(w >= 0.0, axis=1)
-    pen = col.threshold - d[near][on]
-    return 0.5 * col.K * float(pen @ pen)
-
-
-def work_bound(sys: System) -> float:
-    """An upper scale of the energy the scene can legitimately hold: initial energy plus the work of
-    gravity and of the loads over the scene size."""
-    size = scene_size(sys)
-    free = ~sys.pinned
-    W = float(np.linalg.norm(sys.gravity)) * float(np.sum(sys.mass[free])) * size
-    for ld in sys.loads:
-        W += float(np.linalg.norm(ld.force)) * len(ld.nodes) * size
-    return W + mechanical_energy(sys, sys.x0, sys.v0, sys.a0)
-
-
-class DivergenceTest:
-    """Decides from frames whether a run diverged: non-finite state, a node further than BOX x the scene
-    size from the scene's centre, or mechanical energy above GROWTH x the work bound (initial energy plus
-    what gravity and the loads can put in over the scene size, see work_bound). The bound does not come
-    from the run itself (say its first 10 %): a run unstable from its first steps would raise it with it."""
-
-    def __init__(self, sys: System, extra_energy: float = 0.0):
-        self.sys = sys
-        self.size = scene_size(sys)
-        self.centre = 0.5 * (sys.x0.min(0) + sys.x0.max(0))
-        self.reference = max(work_bound(sys) + extra_energy, 1e-300)
-        self.last_energy = 0.0
-
-    def why(self, x, v, a, step: int = 0) -> str | None:
-        """None while the run is sane, else a short reason."""
-        if not (np.isfinite(x).all() and np.isfinite(v).all() and np.isfinite(a).all()):
-            return "the state is no longer finite"
-        far = float(np.max(np.abs(np.asarray(x) - self.centre)))
-        if far > BOX * self.size:
-            return f"a node is {far:.3g} m from the scene centre ({BOX:g} x the scene size {self.size:.3g} m)"
-        with np.errstate(over="ignore", invalid="ignore"):
-            E = mechanical_energy(self.sys, x, v, a)
-        self.last_energy = E
-        if not math.isfinite(E):
-            return "the mechanical energy is no longer finite"
-        if E > GROWTH * self.reference:
-            return (f"the mechanical energy {E:.3g} J is {E / self.reference:.3g} x the work bound "
-                    f"{self.reference:.3g} J")
-        return None
-
-
-class EnergyWatch:
-    """Divergence watchdog for a golden run; call check(state) once per output frame (cheap: one pass
-    over elements, penalty pairs and nodes). Raises SimulationDiverged with the step, time, growth and
-    the predicted dt limit."""
-
-    def __init__(self, sys: System):
-        self.sys = sys
-        self.test = DivergenceTest(sys)
-        self._pred = None
-
-    def prediction(self) -> dict:
-        if self._pred is None:
-            self._pred = predict(self.sys)
-        return self._pred
-
-    def check(self, state) -> None:
-        why = self.test.why(state.x, state.v, state.a, state.step)
-        if why is None:
-            return
-        sys = self.sys
-        p = self.prediction()
-        raise SimulationDiverged(
-            f"scene '{sys.name}' diverged at step {state.step} (t = {state.step * sys.dt:.6g} s): {why}; "
-            f"reduce dt (now {sys.dt:g} s) below the predicted limit {p['dt_pred']:.4g} s "
-            f"(limited by {p['limiting']})")
-
-
-# ---------------------------------------------------------------- measurement
-
-def with_dt(sys: System, dt: float, steps: int | None = None) -> System:
-    """The same scene with another dt (and n_steps = duration / dt, or `steps`)."""
-    duration = sys.n_steps * sys.dt
-    n = int(steps) if steps is not None else max(1, int(math.ceil(duration / dt - 1e-9)))
-    return dataclasses.replace(sys, dt=float(dt), n_steps=n, every=max(1, n // 200))
-
-
-@dataclasses.dataclass
-class Reference:
-    """Energy history of a run at a safely small dt: the yardstick of the trials."""
-    t: np.ndarray
-    E: np.ndarray
-    dt: float
-    window: float            # half width of the time window of the local maximum
-
-    @property
-    def peak(self) -> float:
-        return float(self.E.max())
-
-    def allowed(self, t: float) -> float:
-        """Energy a stable trial may have at time t."""
-        if t > self.t[-1] + self.window:
-            return LOCAL * self.peak
-        lo, hi = np.searchsorted(self.t, [t - self.window, t + self.window])
-        seg = self.E[max(0, lo - 1):min(len(self.E), hi + 1)]
-        return LOCAL * float(seg.max()) + FLOOR * self.peak
-
-
-def _start(sys: System, dt: float, n: int, seed: int, perturb: float):
-    """The scene at dt for n steps and its initial state, free nodes displaced by perturb x scene size
-    (random, fixed seed) so that every mode is seeded: a scene at rest in an exact equilibrium would
-    otherwise never show an unstable mode."""
-    s = with_dt(sys, dt, n)
-    st = State.initial(s)
-    rng = np.random.default_rng(seed)
-    free = ~s.pinned
-    st.x[free] += perturb * scene_size(s) * rng.standard_normal((int(free.sum()), s.dim))
-    return s, st
-
-
-def _run(sys: System, dt: float, n: int, check, check_every: int, seed: int, perturb: float, model=None):
-    """Step the scene; every check_every steps ask the DivergenceTest, then check(t, energy); stop at the
-    first reason. Returns (reason or None, steps run).
-
-    model: None steps golden.model.Golden; else model(scene at dt, perturbed start State) returns another
-    stepper with the protocol of golden.model.simulate (initial_state(), step(st), frame(st) -> SI x, v,
-    a), e.g. the bit-true model (hw/stability_fixed.py); a SimulationDiverged it raises (runaway
-    saturations) ends the run as unstable."""
-    s, st = _start(sys, dt, n, seed, perturb)
-    test = DivergenceTest(s, extra_energy=mechanical_energy(s, st.x, st.v, st.a))
-    g = Golden(s) if model is None else model(s, st)
-    if model is not None:
-        st = g.initial_state()
-    with np.errstate(over="ignore", invalid="ignore"):
-        while st.step < n:
-            stop = min(n, st.step + check_every)
-            try:
-                if hasattr(g, "advance"):              # steppers that run many steps in one call
-                    g.advance(st, stop - st.step)
-                while st.step < stop:
-                    g.step(st)
-                x, v, a = (st.x, st.v, st.a) if model is None else g.frame(st)
-            except SimulationDiverged as exc:          # only other models raise (golden steps never do)
-                return f"step {st.step}: {exc}", st.step
-            why = test.why(x, v, a, st.step) or check(st.step * dt, test.last_energy)
-            if why is not None:
-                return f"step {st.step}: {why}", st.step
-    return None, n
-
-
-def reference(sys: System, dt: float, t_end: float, check_every: int = 25, seed: int = 0,
-              perturb: float = PERTURB, model=None) -> Reference:
-    """Energy history of the scene at dt (expected stable) up to t_end (of another model: see _run)."""
-    n = max(1, int(math.ceil(t_end / dt - 1e-9)))
-    ts, Es = [], []
-
-    def record(t, E):
-        ts.append(t)
-        Es.append(E)
-
-    why, _ = _run(sys, dt, n, record, check_every, seed, perturb, model)
-    if why is not None:
-        raise RuntimeError(f"scene '{sys.name}': the reference run at dt = {dt:.4g} s is unstable ({why})")
-    return Reference(np.array(ts), np.array(Es), dt, max(0.02 * t_end, 4 * check_every * dt))
-
-
-def trial(sys: System, dt: float, ref: Reference | None = None, steps: int | None = None,
-          max_steps: int = MAX_STEPS, check_every: int = 25, seed: int = 0, perturb: float = PERTURB,
-          model=None):
-    """Run the scene at dt; returns (stable, reason or None, steps run).
-
-    Unstable: the DivergenceTest fires (non-finite, out of the box, energy > GROWTH x work bound), or,
-    with a reference run, the mechanical energy exceeds LOCAL x the reference's largest energy within
-    +- its window around the same time, plus FLOOR x the reference's peak. The local test catches what
-    a divergence test misses: an unstable mode that a nonlinearity bounds instead of letting it blow up,
-    e.g. a viscoelastic mesh just above its limit saturates geometrically at m/s speeds, and friction
-    above 2 m / k_f chatters with its force capped at mu N."""
-    duration = sys.n_steps * sys.dt
-    n = int(steps) if steps is not None else min(max_steps, max(1, int(math.ceil(duration / dt - 1e-9))))
-
-    def check(t, E):
-        if ref is None:
-            return None
-        allowed = ref.allowed(t)
-        if E > allowed:
-            return (f"the mechanical energy {E:.3g} J at t = {t:.4g} s exceeds {allowed:.3g} J allowed by "
-                    f"the reference run at dt = {ref.dt:.3g} s")
-        return None
-
-    why, done = _run(sys, dt, n, check, check_every, seed, perturb, model)
-    return why is None, why, done
-
-
-def measure(sys: System, lo: float | None = None, hi: float | None = None, rel_tol: float = 0.05,
-            steps: int | None = None, max_steps: int = MAX_STEPS, pred: dict | None = None,
-            compare: bool | None = None, verbose: bool = False, trial_fn=None, model=None) -> dict:
-    """Measured largest stable dt by bisection on real runs of the golden model, or of another model:
-    trial_fn(sys, dt, ref, steps=, max_steps=) -> (stable, reason or None, steps run) replaces trial
-    (hw.stability_fixed.trial_fixed: the bit-true model); the reference run stays a golden run. `model`
-    (see _run) steps both the reference and the trials instead of golden.model.Golden: the cpu backend
-    (sim/cpu.py stability_model), the same physics compiled.
-
-    compare: judge the trials against a reference run too (see trial); by default only when the scene
-    has something that moves it (loads, gravity or an initial velocity). Without, a run that only relaxes
-    the measuring perturbation is unstable exactly when it diverges, which the DivergenceTest sees.
-
-    A reference run at dt_ref = 0.5 x dt_pred (or 0.5 x lo) over the scene's duration gives the energy
-    history the trials are compared with (see trial). Each trial runs the scene's duration at the trial
-    dt (n_steps = duration / dt), capped at max_steps = 2e4 steps, or exactly `steps`: past its limit
-    a mode grows by a few % per step or more, so a few hundred steps after the scene's events show it,
-    and 2e4 steps cover the whole duration of every built-in scene at the dt that matter (> 1e-4 s).
-    The bracket starts at the prediction: if dt_pred is stable it is the lower end and the upper end
-    doubles until a run is unstable, else it halves down. Geometric bisection stops when
-    hi / lo < 1 + rel_tol. Returns lo (largest stable dt found), hi (smallest unstable dt found),
-    dt_meas = sqrt(lo hi), ratio = dt_pred / dt_meas, the trials and the wall time."""
-    t0 = time.perf_counter()
-    pred = predict(sys) if pred is None else pred
-    start = pred["dt_pred"] if math.isfinite(pred["dt_pred"]) else sys.dt
-    base = lo if lo is not None else (0.5 * hi if hi is not None else start)
-    dt_ref = 0.5 * base
-    duration = sys.n_steps * sys.dt
-    span = duration if steps is None else min(duration, steps * 4 * base)
-    if compare is None:
-        compare = bool(sys.loads) or bool(np.any(sys.gravity != 0)) or bool(np.any(sys.v0 != 0))
-    ref = None
-    while compare and ref is None:
-        try:
-            ref = reference(sys, dt_ref, min(span, 4 * max_steps * dt_ref), model=model)
-        except RuntimeError:
-            if dt_ref < 0.01 * base:
-                raise
-            dt_ref *= 0.5                              # the prediction was far too high: a smaller yardstick
-    trials = []
-    if trial_fn is None:
-        def trial_fn(sys_, dt, ref_, **kw):
-            return trial(sys_, dt, ref_, model=model, **kw)
-
-    def run(dt):
-        ok, why, n = trial_fn(sys, dt, ref, steps=steps, max_steps=max_steps)
-        trials.append({"dt": dt, "stable": ok, "steps": n, "why": why})
-        if verbose:
-            print(f"  dt = {dt:.5g}: {'stable' if ok else 'unstable'} ({n} steps){'' if ok else ' ' + why}",
-                  flush=True)
-        return ok
-
-    if lo is None and hi is None:
-        if run(start):
-            lo, hi = start, 2.0 * start
-            while run(hi):
-                lo, hi = hi, 2.0 * hi
-                if hi > 1e6 * start:
-                    raise RuntimeError(f"scene '{sys.name}': no instability found up to dt = {hi:g} s")
-        else:
-            hi, lo = start, 0.5 * start
-            while not run(lo):
-                hi, lo = lo, 0.5 * lo
-                if lo < 1e-6 * start:
-                    raise RuntimeError(f"scene '{sys.name}': unstable down to dt = {lo:g} s")
-    else:
-        if lo is None:
-            lo = 0.5 * hi
-        if hi is None:
-            hi = 2.0 * lo
-    while hi / lo > 1.0 + rel_tol:
-        mid = math.sqrt(lo * hi)
-        if run(mid):
-            lo = mid
-        else:
-            hi = mid
-    dt_meas = math.sqrt(lo * hi)
-    return {"dt_meas": dt_meas, "lo": lo, "hi": hi, "dt_pred": pred["dt_pred"],
-            "ratio": pred["dt_pred"] / dt_meas, "dt_ref": dt_ref if compare else None, "trials": trials,
-            "seconds": time.perf_counter() - t0}

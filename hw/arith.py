@@ -1,16 +1,21 @@
-"""Two arithmetics for one datapath: float64 (records ranges) and bit-true fixed point.
+"""The arithmetic the datapath is written against, and its two array implementations.
 
-The datapath (hw/datapath.py) is written once against this interface. Every value is a `V`: an array
-and the name of the quantity it holds. Every operation names the quantity of its result; in fixed point
-that name selects the result's format (hw/formats.py), so rounding and saturation happen exactly where
-the hardware rounds and saturates.
+The kernels of hw/datapath.py are written once against `Arith` (the operations below) and `Gate` (a
+condition that selects items). Three arithmetics run them:
 
-- `FloatArith` computes in float64 and records the largest magnitude of every quantity (range analysis).
+- `FloatArith` computes in float64 and records the largest magnitude of every quantity (range analysis);
 - `FixedArith` computes on raw int64 integers with the formats of a `FormatSet`, rounding to nearest
-  (ties up) and saturating with a count per quantity (hw/fixed.py).
+  (ties up) and saturating with a count per quantity (hw/fixed.py): the bit-true model;
+- `hw.pipeline.PipeArith` emits an Amaranth pipeline stage per operation: the hardware.
+
+Every value names the quantity it holds; every operation names the quantity of its result, and in fixed
+point that name selects the result's format (hw/formats.py), so rounding and saturation happen exactly
+where the hardware rounds and saturates. The two array arithmetics hold values as `V` (an array and its
+quantity) and also gather and scatter whole arrays (`ArrayArith`: the step of hw/datapath.py).
 """
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections import defaultdict
 from dataclasses import dataclass
 
@@ -19,26 +24,122 @@ import numpy as np
 from .fixed import Saturations, Shape, _round_owned_into, _shift_left, add, mul, round_into
 
 
+class Gate(ABC):
+    """The items for which a condition holds: values taken into a gate are its items' only; operations on
+    them act for those items only (in hardware: a flag that travels with the item and enables its
+    saturation counts). `lift` puts a gate's values back among the enclosing gate's items (zero where the
+    condition does not hold), `expand` all the way out, `gate` nests a further condition, `zeros(q)` is
+    zero for the gate's items."""
+
+    @property
+    @abstractmethod
+    def empty(self) -> bool:
+        """No item passes: the array code skips what follows (a hardware gate never is empty)."""
+
+    @abstractmethod
+    def take(self, v): ...
+
+    @abstractmethod
+    def gate(self, cond) -> "Gate": ...
+
+    @abstractmethod
+    def lift(self, v): ...
+
+    @abstractmethod
+    def expand(self, v): ...
+
+    @abstractmethod
+    def zeros(self, q): ...
+
+
+class Arith(ABC):
+    """The operations a kernel may use. `q` names the quantity of a result; values are the arithmetic's own
+    (arrays, raw integers, pipelined Amaranth values); conditions are its booleans."""
+
+    @abstractmethod
+    def const(self, q, value):
+        """A scalar constant."""
+
+    @abstractmethod
+    def param(self, q, value):
+        """A per-item parameter (array) or a scalar; in hardware a ROM field or a constant."""
+
+    @abstractmethod
+    def flag(self, name, values):
+        """A per-item boolean (per node: free, member of a load)."""
+
+    @abstractmethod
+    def window(self, step_no, first, end):
+        """first <= step_no < end (a load's time window)."""
+
+    @abstractmethod
+    def zeros(self, q, n):
+        """Zero in q's format (n items; a hardware zero is one constant)."""
+
+    @abstractmethod
+    def gate(self, cond) -> Gate:
+        """The items where cond holds."""
+
+    @abstractmethod
+    def mul(self, a, b, q): ...
+
+    @abstractmethod
+    def add(self, a, b, q): ...
+
+    @abstractmethod
+    def sub(self, a, b, q): ...
+
+    @abstractmethod
+    def sum(self, terms, q):
+        """The sum of several terms, rounded once."""
+
+    @abstractmethod
+    def neg(self, a):
+        """-a in a's quantity."""
+
+    @abstractmethod
+    def convert(self, a, q):
+        """a rounded (and saturated) into q's format."""
+
+    @abstractmethod
+    def rsqrt(self, a, q):
+        """1 / sqrt(a), the function unit of quantity q."""
+
+    @abstractmethod
+    def inverse(self, mag, curve):
+        """(below, above, outputs) of the inverse table of `curve` (hw/funcunits.py InverseTable)."""
+
+    @abstractmethod
+    def le(self, a, b): ...
+
+    @abstractmethod
+    def lt(self, a, b): ...
+
+    @abstractmethod
+    def select(self, cond, a, b):
+        """cond ? a : b, in a's quantity (b converted first when its quantity differs)."""
+
+
 @dataclass
 class V:
-    x: np.ndarray     # float values, or raw integers in the format of quantity q
+    """A value of the array arithmetics: an array (float values, or raw integers in the format of
+    quantity q) and its quantity."""
+    x: np.ndarray
     q: str
 
 
-class Gate:
-    """The items of an array for which a condition holds (the hardware gates the same items with a flag).
-
-    `take` keeps the active items, `expand` puts active items back into a full array with zeros
-    elsewhere, `lift` does so one level up only (into the enclosing gate's items), `gate` nests a
-    further condition. `empty`: no active item (the array code skips the rest).
-    """
+class ArrayGate(Gate):
+    """A gate of the array arithmetics: the indices of the active items (`take` keeps them)."""
 
     def __init__(self, ar, cond, parent=None, n=None):
         self.ar, self.parent = ar, parent
         self.idx = np.flatnonzero(cond)
         self.n = len(cond) if n is None else n
         self.size = self.idx.size
-        self.empty = self.size == 0
+
+    @property
+    def empty(self) -> bool:
+        return self.size == 0
 
     def take(self, v):
         return self.ar.take(v, self.idx)
@@ -46,7 +147,7 @@ class Gate:
     def gate(self, cond):
         if getattr(self.ar, "open_gates", False):      # the range probe opens nested gates too
             cond = np.ones(np.shape(cond), bool)
-        return Gate(self.ar, cond, self)
+        return ArrayGate(self.ar, cond, self)
 
     def lift(self, v):
         out = np.zeros(self.n, v.x.dtype)
@@ -57,16 +158,20 @@ class Gate:
         full = self.lift(v)
         return self.parent.expand(full) if self.parent is not None else full
 
+    def zeros(self, q):
+        return self.ar.zeros(q, self.size)
+
     @property
     def full_idx(self):
         return self.idx if self.parent is None else self.parent.full_idx[self.idx]
 
 
-class _ArrayArith:
-    """What both array arithmetics share: per-item parameters, flags, gates, step windows."""
+class ArrayArith(Arith):
+    """What both array arithmetics share: per-item parameters, flags, gates, step windows; and the array
+    operations of a whole step: `state` (a state array as a value), `take` (gather items), `scatter`
+    (exact per-node sums), `value` (a value as floats)."""
 
     def param(self, q, value):
-        """A per-item parameter (array) or a scalar; in hardware a ROM field or a constant."""
         return self.const(q, value)
 
     def flag(self, name, values):
@@ -76,23 +181,44 @@ class _ArrayArith:
         return first <= step_no < end
 
     def gate(self, cond):
-        return Gate(self, cond)
+        return ArrayGate(self, cond)
+
+    @abstractmethod
+    def state(self, q, x): ...
+
+    @abstractmethod
+    def host_value(self, q, x):
+        """A value a host writes at run time (the probe's position, SI converted to hardware units) in q's
+        format: rounded, its saturations counted as the run's."""
+
+    @abstractmethod
+    def initial_value(self, q, x):
+        """A value of the initial state (the probe's initial position) in q's format, converted like the
+        initial state (saturations counted as the constants')."""
+
+    @abstractmethod
+    def take(self, v, idx): ...
+
+    @abstractmethod
+    def scatter(self, parts, n, q): ...
+
+    @abstractmethod
+    def value(self, v) -> np.ndarray: ...
 
 
-class FloatArith(_ArrayArith):
+class FloatArith(ArrayArith):
     """float64 arithmetic; `peak[q]` is the largest |value| seen for quantity q.
 
     With `open_gates` every gate lets every item through (a probe that reaches every quantity, even
     ones a run never uses, such as contact forces of a scene that never touches the floor).
     """
-    exact = True
 
     def __init__(self, open_gates: bool = False):
         self.peak = defaultdict(float)
         self.open_gates = open_gates
 
     def gate(self, cond):
-        return Gate(self, np.ones(np.shape(cond), bool) if self.open_gates else cond)
+        return ArrayGate(self, np.ones(np.shape(cond), bool) if self.open_gates else cond)
 
     def _rec(self, q, x):
         x = np.asarray(x, float)
@@ -106,6 +232,12 @@ class FloatArith(_ArrayArith):
         return self._rec(q, value)
 
     def state(self, q, x):
+        return self._rec(q, x)
+
+    def host_value(self, q, x):
+        return self._rec(q, x)
+
+    def initial_value(self, q, x):
         return self._rec(q, x)
 
     def value(self, v: V) -> np.ndarray:
@@ -170,9 +302,8 @@ class FloatArith(_ArrayArith):
         return V(out, q)
 
 
-class FixedArith(_ArrayArith):
+class FixedArith(ArrayArith):
     """Bit-true fixed-point arithmetic with the formats of `fmt` (quantity -> Shape)."""
-    exact = False
 
     def __init__(self, fmt: dict, units: dict | None = None, sat: Saturations | None = None,
                  const_sat: Saturations | None = None, lost: Saturations | None = None):
@@ -216,6 +347,12 @@ class FixedArith(_ArrayArith):
 
     def state(self, q, raw):
         return V(np.asarray(raw, np.int64), q)
+
+    def host_value(self, q, x):
+        return V(self.shape(q).from_float(x, self.sat, q), q)
+
+    def initial_value(self, q, x):
+        return V(self.convert_constant(q, x), q)
 
     def value(self, v: V) -> np.ndarray:
         return self.shape(v.q).to_float(v.x)

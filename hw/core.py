@@ -39,12 +39,13 @@ import functools
 from dataclasses import dataclass, field
 
 import numpy as np
-from amaranth.hdl import Cat, Const, Fragment, Module, Mux, Shape, Signal, signed, unsigned
+from amaranth.hdl import Cat, Const, Module, Mux, Shape, Signal, signed, unsigned
 from amaranth.lib import wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
-from .datapath import Params, _node_flags, collision_kernel, element_kernel, node_kernel, pair_kernel
+from golden.errors import BadArgument
+from .datapath import NotSupported, Params, _node_flags, collision_kernel, element_kernel, node_kernel, pair_kernel
 from .hostmap import ADDR_BITS, ELEM_BASE, ID_WORD, NODE_BASE, HostMap, Reg
 from .pipeline import PipeArith
 from .rtl_fixed import as_shape, tree_sum
@@ -74,7 +75,10 @@ class CoreConfig:
     def __post_init__(self):
         for name, v in (("lanes", self.lanes), ("node_lanes", self.node_lanes)):
             if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 64:
-                raise ValueError(f"{name} must be an integer in 1..64, got {v!r}")
+                raise BadArgument(f"{name} must be an integer in 1..64, got {v!r}")
+        if self.params.probe is not None:
+            raise NotSupported("this core has no probe port yet (issue 16 item 3: the streaming core's); a scene "
+                               "with a [probe] runs on the golden and fixed backends")
 
     @classmethod
     def of(cls, bt, lanes=1, node_lanes=1) -> "CoreConfig":
@@ -156,11 +160,17 @@ class CoreConfig:
 
 
 def schedule(cfg: CoreConfig) -> dict:
-    """The core's static timing (elaborates it, no Verilog): cycles per step and the pipeline drains."""
+    """The core's static timing (known when it is constructed): cycles per step and the pipeline drains."""
     core = Core(cfg)
-    Fragment.get(core, None)          # the whole hierarchy, so no part is left "created but never used"
     return {"cycles_per_step": core.cycles_per_step, "drain_elements": core.drain_elements,
             "drain_nodes": core.drain_nodes, "lanes": cfg.lanes, "node_lanes": cfg.node_lanes}
+
+
+def _discard(m: Module) -> None:
+    """Mark a module built only to learn its schedule, and its submodules, as used: they are never
+    elaborated, and Amaranth would warn that they were "created but never used"."""
+    for sub in [m] + [s for s, _ in m._named_submodules.values()] + [s for s, _ in m._anon_submodules]:
+        sub._MustUse__used = True
 
 
 def _bits(n):
@@ -178,10 +188,11 @@ def _registered(m, value, name):
 class Core(wiring.Component):
     """The specialised accelerator for one scene (see the module docstring for phases and registers).
 
-    After elaboration: `cycles_per_step`, `drain_elements`, `drain_nodes`, `sat_quantities`,
-    `const_saturations` and `units_present` describe what was built; `memories` lists every memory of
-    the hierarchy (name, depth, width): the core's own and those inside its function units (the 1/sqrt
-    seed ROMs, the Phi / Psi table ROMs), the latter named by their place in the hierarchy.
+    Known at construction (the pipelines are built once on a scratch module to learn their depths):
+    `cycles_per_step`, `drain_elements`, `drain_nodes`, `sat_quantities` (the saturation flags' order),
+    `const_saturations`, `units_present` and `memories`, every memory of the hierarchy (name, depth,
+    width): the core's own and those of its function units (the 1/sqrt seed ROMs, the Phi / Psi table
+    ROMs), the latter named by their place in the hierarchy.
     """
 
     def __init__(self, cfg: CoreConfig):
@@ -189,28 +200,18 @@ class Core(wiring.Component):
             raise TypeError(f"Core needs a CoreConfig, got {type(cfg).__name__}")
         self.cfg = cfg
         super().__init__({"host": In(HostSignature)})
-        self._built = None
+        _discard(self._build())           # a dry build: the schedule and the inventory, known now
+        self._facts = self._schedule_facts()
 
-    # the static figures need the pipelines' depths: build once, cache
+    def _schedule_facts(self):
+        return (self.cycles_per_step, self.drain_elements, self.drain_nodes, list(self.sat_quantities),
+                [dict(m) for m in self.memories])
+
     def elaborate(self, platform):
         m = self._build()
-        frag = Fragment.get(m, platform)      # the whole hierarchy: function units' memories counted too
-        self._unit_memories(frag)
-        return frag
-
-    def _unit_memories(self, frag):
-        """Append to `memories` every memory of the elaborated hierarchy that the core did not add itself."""
-        own = {id(mem) for mem in self._own_memories}
-
-        def walk(f, path):
-            for n, (sub, name, _) in enumerate(f.subfragments):
-                where = f"{path}.{name if name is not None else f'U${n}'}" if path else str(name)
-                for mem in sub.origins or ():
-                    if isinstance(mem, Memory) and id(mem) not in own:
-                        self.memories.append({"name": where, "depth": mem.depth,
-                                              "width": Shape.cast(mem.shape).width})
-                walk(sub, where)
-        walk(frag, "")
+        if self._schedule_facts() != self._facts:
+            raise AssertionError("the core elaborated differently from its construction")
+        return m
 
     def _build(self):
         cfg, p, fmt = self.cfg, self.cfg.params, self.cfg.formats
@@ -632,7 +633,9 @@ class Core(wiring.Component):
                         with m.If((re_field == fi) & (re_lane == lane)):
                             m.d.comb += r_data.eq(data.as_signed())
         m.d.sync += [host.r_data.eq(r_data), host.r_valid.eq(r_en2)]
-        self.units_present = self._units_present()
+        for ar in all_arith:                 # the function units' memories, after the core's own
+            self.memories += ar.memories
+        self.units_present = self.cfg.features()
         return m
 
     def _host_elem_writes(self, m, busy, host, h_elem, e_field, e_lane, e_pos):
@@ -666,7 +669,3 @@ class Core(wiring.Component):
         for (sig, _), width in zip(fields, widths):
             m.d.comb += sig.eq(rp.data[off:off + width])
             off += width
-
-    def _units_present(self):
-        f = self.cfg.features()
-        return f

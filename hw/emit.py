@@ -39,7 +39,7 @@ SPECIALISATION = [
 ]
 
 
-def full_featured(sys):
+def full_featured(system):
     """The scene with every optional unit switched on, for measuring what specialisation saves.
 
     Same mesh, masses (one node 1.5x heavier: per-node mass), lanes and formats preset; added where the
@@ -51,33 +51,30 @@ def full_featured(sys):
     import dataclasses
     import math
     from golden import mesh as meshlib
-    from golden.contact import Collision, Floor
+    from golden.builder import collision_of, element_arrays
+    from golden.contact import Floor
     from golden.elements import ElementParams
-    from golden.model import Load, Topology
-    from golden.scene import PRESETS
-    D, N, E = sys.dim, sys.n_nodes, sys.n_elements
-    mat = PRESETS["rheological"]
-    l0 = np.linalg.norm(sys.x0[sys.edges[:, 1]] - sys.x0[sys.edges[:, 0]], axis=1)
-    elem = ElementParams.build(*(np.full(E, mat[k]) for k in ("k1", "c1", "a_min", "a_max")), mat["a0"] * l0,
-                               *(np.full(E, mat[k]) for k in ("c_min", "c_max", "f1", "f2")))
-    mass = sys.mass.copy()
-    mass[np.argmax(~sys.pinned)] *= 1.5
-    kf = float(mass.min()) / sys.dt
-    gravity = sys.gravity if np.any(sys.gravity) else np.eye(D)[D - 1] * -9.81
-    floor = sys.floor or Floor(float(sys.x0[:, D - 1].min()) - 1e-3, 1e4, 1.0, 0.3, kf)
+    from golden.scene import MATERIALS
+    from golden.system import Load, Topology
+    D = system.dim
+    arrays, a0 = element_arrays(MATERIALS["rheological"], system.x0, system.edges)
+    mass = system.mass.copy()
+    mass[np.argmax(~system.pinned)] *= 1.5
+    kf = float(mass.min()) / system.dt
+    gravity = system.gravity if np.any(system.gravity) else np.eye(D)[D - 1] * -9.81
+    floor = system.floor or Floor(float(system.x0[:, D - 1].min()) - 1e-3, 1e4, 1.0, 0.3, kf)
     floor = dataclasses.replace(floor, mu=floor.mu or 0.3, k_f=floor.k_f if floor.mu else kf)
-    topology, collision = sys.topology, sys.collision
-    if len(sys.cells) and topology is None:
-        topology = Topology(meshlib.topology_pairs(sys.cells, sys.x0), 1e3, 0.5, 0.002)
-    if len(sys.cells) and collision is None:
-        faces, _ = meshlib.boundary_faces(sys.cells, sys.x0)
-        keys = np.concatenate([sys.edges[:, 0] * N + sys.edges[:, 1], sys.edges[:, 1] * N + sys.edges[:, 0]])
-        collision = Collision(np.unique(faces), faces, np.sort(keys), N, 1e4, 1.0, 0.002, 0.3, kf / 2)
+    topology, collision = system.topology, system.collision
+    if len(system.cells) and topology is None:
+        topology = Topology(meshlib.topology_pairs(system.cells, system.x0), 1e3, 0.5, 0.002)
+    if len(system.cells) and collision is None:
+        collision = collision_of(system.cells, system.edges, system.x0, 1e4, 1.0, 0.002, 0.3, kf / 2)
     elif collision is not None and not collision.mu:
         collision = dataclasses.replace(collision, mu=0.3, k_f=kf / 2)
-    loads = sys.loads or [Load(np.array([0]), np.eye(D)[0] * 1e-3, 0.0, math.inf)]
-    return dataclasses.replace(sys, name=f"{sys.name}-full", mass=mass, elem=elem, a0=np.full(E, mat["a0"]),
-                               gravity=gravity, floor=floor, topology=topology, collision=collision, loads=loads)
+    loads = system.loads or [Load(np.array([0]), np.eye(D)[0] * 1e-3, 0.0, math.inf)]
+    return dataclasses.replace(system, name=f"{system.name}-full", mass=mass, elem=ElementParams.build(**arrays),
+                               a0=a0, gravity=gravity, floor=floor, topology=topology, collision=collision,
+                               loads=loads)
 
 
 def build(bt: BitTrue, lanes: int = 1, node_lanes: int = 1):
@@ -98,7 +95,7 @@ def manifest(bt: BitTrue, core: Core) -> dict:
     mems = core.memories
     return {
         "top": TOP,
-        "scene": bt.sys.name,
+        "scene": bt.system.name,
         "preset": bt.formats.preset.name,
         "dim": cfg.dim,
         "nodes": N, "elements": E, "pairs": Pn, "collision_pairs": Cn,

@@ -20,6 +20,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from golden.errors import RheoError
+
+
+class FormatError(RheoError, ValueError):
+    """Number formats under which the scene cannot run right (a constant or the initial state does not fit,
+    a format wider than the bit-true model or a function unit supports)."""
+
 MAX_OPERAND_BITS = 32
 
 
@@ -32,9 +39,9 @@ class Shape:
 
     def __post_init__(self):
         if self.width < 1:
-            raise ValueError(f"{self}: width must be at least 1 bit")
+            raise FormatError(f"{self}: width must be at least 1 bit")
         if self.width > 62:
-            raise ValueError(f"{self}: width {self.width} exceeds the 62 bits the bit-true model supports")
+            raise FormatError(f"{self}: width {self.width} exceeds the 62 bits the bit-true model supports")
 
     @property
     def width(self) -> int:
@@ -158,7 +165,7 @@ def rescale(raw, src: Shape, dst: Shape, sat=None, name="") -> np.ndarray:
 def mul(a, sa: Shape, b, sb: Shape, dst: Shape, sat=None, name="") -> np.ndarray:
     """Exact product of two operands, rounded and saturated into dst."""
     if sa.width > MAX_OPERAND_BITS or sb.width > MAX_OPERAND_BITS:
-        raise ValueError(f"multiplier operands {sa} x {sb} exceed {MAX_OPERAND_BITS} bits")
+        raise FormatError(f"multiplier operands {sa} x {sb} exceed {MAX_OPERAND_BITS} bits")
     return _round_owned_into(np.asarray(a, np.int64) * np.asarray(b, np.int64), sa.f + sb.f, dst, sat, name)
 
 

@@ -2,7 +2,9 @@
 
 One place defines them: each quantity named in hw/datapath.py gets a fixed-point format here.
 - Word widths come from a preset: `state` words (positions, velocities, a), `operand` words (multiplier
-  inputs and products), and the node force accumulator (operand + `acc_guard` bits).
+  inputs and products), and the node force accumulator (operand + `acc_guard` bits). The probe's forces
+  (`probe_force`) sit at the node force's binary point with the integer bits their range needs, so that
+  each node takes its probe force exactly and the probe's force is their exact integer sum.
 - Binary points come from range analysis: the float datapath is run over the scene and the peak |value|
   of each quantity, times a headroom, sets its integer bits; the rest of the word is fraction.
   a, unit vectors and weights have fixed ranges ([0, 1] / [-1, 1]) and fixed formats.
@@ -16,8 +18,9 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
+from enum import StrEnum
 
-from .fixed import SQ, Shape
+from .fixed import SQ, FormatError, Shape
 
 # quantity -> (word class, what it is)
 QUANTITIES = {
@@ -58,6 +61,18 @@ QUANTITIES = {
     "cdist": ("operand", "collision: signed distances to the facet and projections along it"),
     "fmag2": ("operand", "friction: squared tangential force"),
     "finv": ("operand", "friction: 1 / |tangential force|"),
+    "pr": ("operand", "probe: node offset x - p inside the probe's bounding box (|x_k - p_k| < R)"),
+    "pr2": ("operand", "probe: squared distance |x - p|^2 (the gate |x - p|^2 < R^2)"),
+    "pinv": ("operand", "probe: 1 / |x - p| (rsqrt unit)"),
+    "pdist": ("operand", "probe: distance |x - p| and penetration R - |x - p|"),
+    "pdu": ("operand", "probe: node velocity relative to the probe, its normal and tangential parts"),
+    "psample": ("operand", "probe: displacement over one device sample, p - p_prev"),
+    "pdot": ("operand", "probe: velocity (p - p_prev) / k, as displacement per step"),
+    "pforce": ("operand", "probe: normal force N on a node, mu N, friction"),
+    "pfmag2": ("operand", "probe friction (3D): squared tangential force"),
+    "pfinv": ("operand", "probe friction (3D): 1 / |tangential force|"),
+    "pfe": ("probe_force", "probe: force component on a node, at the node force's binary point (enters facc exactly)"),
+    "fprobe": ("probe_force", "probe: the force on the probe, minus the exact sum of the node probe forces"),
 }
 # quantities that share another's format
 ALIASES: dict = {}
@@ -68,7 +83,12 @@ CONSTANTS = {"L": "l", "k1": None, "c1": None, "c1a": None, "c2": None, "phi_s":
              "eps": None, "topo_K": None, "topo_C": None,
              "floor_K": None, "floor_C": None, "floor_kf": None, "mu": None, "inv_mass": None, "g": None,
              "coll_h": None, "coll_K": None, "coll_C": None, "coll_kf": None,
+             "probe_R": None, "probe_R2": None, "probe_K": None, "probe_C": None, "probe_kf": None, "inv_k": None,
              "load": "facc"}
+
+# every quantity and constant name as a checked constant: kernels write Q.l2, and a misspelt name is an
+# AttributeError where it is written (tests/test_house.py also checks every Q.name in the kernels' source)
+Q = StrEnum("Q", {name: name for name in (*QUANTITIES, *CONSTANTS)})
 
 
 @dataclass(frozen=True)
@@ -89,7 +109,7 @@ class Preset:
     description: str = ""
 
 
-PRESETS = {
+FORMAT_PRESETS = {
     "narrow": Preset("narrow", 18, 18, rsqrt_seed_bits=9, rsqrt_newton=1, rsqrt_table_segments_log2=10,
                      damper_segments_log2=6,
                      description="DSP-native: 18-bit words everywhere (one 18x18 multiplier per product)"),
@@ -118,7 +138,7 @@ _SHAPE_RE = re.compile(r"^\s*(SQ|UQ)\s*\(\s*(-?\d+)\s*,\s*(-?\d+)\s*\)\s*$")
 def parse_shape(text: str) -> Shape:
     m = _SHAPE_RE.match(str(text))
     if not m:
-        raise ValueError(f"format must look like SQ(i, f) or UQ(i, f), got {text!r}")
+        raise FormatError(f"format must look like SQ(i, f) or UQ(i, f), got {text!r}")
     from .fixed import UQ
     return (SQ if m.group(1) == "SQ" else UQ)(int(m.group(2)), int(m.group(3)))
 
@@ -129,8 +149,6 @@ STAGNATION_STATES = {"x": "v dt (the displacement of a step)", "u": "F dt / m (t
                      "a": "adot dt (the change of a of a step)"}
 
 
-class FormatError(ValueError):
-    """Number formats under which the scene cannot run right (a constant or the initial state does not fit)."""
 
 
 @dataclass
@@ -181,7 +199,7 @@ def derive(peaks: dict, preset: Preset, overrides: dict | None = None, increment
             fs.shapes[q] = SQ(2, ws - 2)
         elif cls == "fixed_operand":
             fs.shapes[q] = SQ(2, wo - 2)
-        elif cls == "accumulator":
+        elif cls in ("accumulator", "probe_force"):
             pass                                    # below: derived from the element force format
         else:
             fs.shapes[q] = fit(peak, wo, preset.headroom_bits)
@@ -189,6 +207,10 @@ def derive(peaks: dict, preset: Preset, overrides: dict | None = None, increment
         fe = fs.shapes.get("fe") or fit(peaks["facc"], wo, preset.headroom_bits)
         i_acc = max(fe.i, _int_bits(peaks["facc"], preset.headroom_bits)) + preset.acc_guard
         fs.shapes["facc"] = SQ(i_acc, fe.f)
+    for q, guard in (("pfe", 0), ("fprobe", preset.acc_guard)):
+        if q in peaks:
+            f = fs.shapes["fe"].f if "fe" in fs.shapes else wo - _int_bits(peaks[q], preset.headroom_bits)
+            fs.shapes[q] = SQ(_int_bits(peaks[q], preset.headroom_bits) + guard, f)
     for q, like in CONSTANTS.items():
         if q not in peaks:
             continue
@@ -200,6 +222,15 @@ def derive(peaks: dict, preset: Preset, overrides: dict | None = None, increment
     for q, shape in check_overrides(overrides or {}).items():
         fs.shapes[q] = shape
     return fs
+
+
+def check_scene_formats(system) -> dict:
+    """Validate a scene's [formats] table (golden keeps it as given); a problem raises FormatError naming
+    the scene and the table."""
+    try:
+        return check_overrides(system.formats)
+    except ValueError as exc:
+        raise FormatError(f"scene '{system.name}': [formats] {exc}") from None
 
 
 def check_overrides(overrides: dict) -> dict:

@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from .fixed import Saturations, Shape, _shift_round_owned, shift_round
+from .fixed import FormatError, Saturations, Shape, _shift_round_owned, shift_round
 
 MAX_UNIT_WIDTH = 32          # widest input/output format of a function unit
 _LIMB = 24
@@ -43,7 +43,7 @@ def _mul_shift_round(a: np.ndarray, b: np.ndarray, s: int, product_bits: int, b_
     (< 2^49) are summed exactly. The caller guarantees that the rounded result fits in 62 bits.
     """
     if s < 0:
-        raise ValueError("shift must be non-negative")
+        raise FormatError("shift must be non-negative")
     if product_bits <= 62 and s <= 62:
         return shift_round(a * b, s)
     k_lo, k_hi = max(product_bits - 61, 1), min(61 - b_bits, s)
@@ -96,18 +96,18 @@ def _bit_length(x: np.ndarray) -> np.ndarray:
 
 def _check_shape(name: str, shape) -> Shape:
     if not isinstance(shape, Shape):
-        raise ValueError(f"{name} must be a fixed-point Shape (SQ(i, f) or UQ(i, f)), got {shape!r}")
+        raise FormatError(f"{name} must be a fixed-point Shape (SQ(i, f) or UQ(i, f)), got {shape!r}")
     if shape.width > MAX_UNIT_WIDTH:
-        raise ValueError(f"{name} {shape} is {shape.width} bits wide; function units take at most "
+        raise FormatError(f"{name} {shape} is {shape.width} bits wide; function units take at most "
                          f"{MAX_UNIT_WIDTH}-bit formats")
     return shape
 
 
 def _check_int(name: str, value, lo: int, hi: int) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name} must be an integer in {lo}..{hi}, got {value!r}")
+        raise FormatError(f"{name} must be an integer in {lo}..{hi}, got {value!r}")
     if not lo <= int(value) <= hi:
-        raise ValueError(f"{name} must be in {lo}..{hi}, got {value}")
+        raise FormatError(f"{name} must be in {lo}..{hi}, got {value}")
     return int(value)
 
 
@@ -115,19 +115,19 @@ def _check_real(name: str, value) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a real number, got {value!r}") from None
+        raise FormatError(f"{name} must be a real number, got {value!r}") from None
     if not math.isfinite(v):
-        raise ValueError(f"{name} must be finite, got {v}")
+        raise FormatError(f"{name} must be finite, got {v}")
     return v
 
 
 def _check_raw(raw, shape: Shape, what: str) -> np.ndarray:
     x = np.asarray(raw)
     if x.dtype.kind not in "iu":
-        raise ValueError(f"{what}: raw inputs must be integers, got dtype {x.dtype}")
+        raise FormatError(f"{what}: raw inputs must be integers, got dtype {x.dtype}")
     x = np.asarray(x, np.int64)          # no copy: the units never write into their input
     if x.size and (int(x.min()) < shape.min_raw or int(x.max()) > shape.max_raw):
-        raise ValueError(f"{what}: raw inputs outside {shape} (raw range {shape.min_raw}..{shape.max_raw})")
+        raise FormatError(f"{what}: raw inputs outside {shape} (raw range {shape.min_raw}..{shape.max_raw})")
     return x
 
 
@@ -235,10 +235,10 @@ class Rsqrt:
         self.name = str(name)
         self.M = out_shape.width + self.guard_bits
         if self.M < self.seed_bits:
-            raise ValueError(f"Rsqrt: the internal mantissa (out_shape {out_shape} width + guard_bits = "
+            raise FormatError(f"Rsqrt: the internal mantissa (out_shape {out_shape} width + guard_bits = "
                              f"{self.M} bits) is narrower than seed_bits = {self.seed_bits}")
         if in_shape.max_raw < 1:
-            raise ValueError(f"Rsqrt in_shape {in_shape} has no positive values")
+            raise FormatError(f"Rsqrt in_shape {in_shape} has no positive values")
         self.Y = self.M
         # seed ROM: y0 = round(2^Y / sqrt(c)), c = (2 idx + 1) 2^-(sb+1), i.e. round(sqrt(Q)) with
         # Q = 2^(2Y+sb+1) / (2 idx + 1); round(sqrt(Q)) = (floor(sqrt(4Q)) + 1) // 2, and
@@ -571,10 +571,10 @@ class InverseTable:
                  frac_bits: int = 16, scale_bits: int = 25, name: str | None = None):
         self.in_shape = _check_shape("InverseTable in_shape", in_shape)
         if not isinstance(curve, OddCurve):
-            raise ValueError(f"InverseTable needs an OddCurve, got {curve!r}")
+            raise FormatError(f"InverseTable needs an OddCurve, got {curve!r}")
         out_shapes = tuple(out_shapes)
         if len(out_shapes) != 1 + len(curve.companions):
-            raise ValueError(f"InverseTable: {len(out_shapes)} output formats for 1 inverse and "
+            raise FormatError(f"InverseTable: {len(out_shapes)} output formats for 1 inverse and "
                              f"{len(curve.companions)} companions")
         self.out_shapes = tuple(_check_shape(f"InverseTable output {k}", s) for k, s in enumerate(out_shapes))
         self.S = _check_int("InverseTable segments_log2", segments_log2, 1, 12)
@@ -584,12 +584,12 @@ class InverseTable:
         self.name = str(curve.name if name is None else name)
         t_lo, t_hi = _check_real("InverseTable t_lo", curve.t_lo), _check_real("InverseTable t_hi", curve.t_hi)
         if not 0 <= t_lo < t_hi:
-            raise ValueError(f"InverseTable: need 0 <= t_lo < t_hi, got t_lo = {t_lo:g}, t_hi = {t_hi:g}")
+            raise FormatError(f"InverseTable: need 0 <= t_lo < t_hi, got t_lo = {t_lo:g}, t_hi = {t_hi:g}")
         y1, y2 = float(curve.g(np.float64(t_lo))), float(curve.g(np.float64(t_hi)))
         if not (math.isfinite(y1) and math.isfinite(y2) and 0 <= y1 < y2):
-            raise ValueError(f"InverseTable: the curve must increase on [t_lo, t_hi], got g = {y1:g} .. {y2:g}")
+            raise FormatError(f"InverseTable: the curve must increase on [t_lo, t_hi], got g = {y1:g} .. {y2:g}")
         if y2 - y1 < in_shape.lsb:
-            raise ValueError(f"InverseTable: y2 - y1 = {y2 - y1:g} is below one LSB ({in_shape.lsb:g}) of "
+            raise FormatError(f"InverseTable: y2 - y1 = {y2 - y1:g} is below one LSB ({in_shape.lsb:g}) of "
                              f"in_shape {in_shape}; the nonlinear piece cannot be resolved")
         self.t_lo, self.t_hi, self.y1, self.y2 = t_lo, t_hi, y1, y2
         S, P, sb, fy = self.S, self.P, self.scale_bits, in_shape.f
@@ -633,7 +633,7 @@ class InverseTable:
     def __call__(self, y_raw: np.ndarray, sat: Saturations | None = None):
         y = _check_raw(y_raw, self.in_shape, f"InverseTable {self.name}({self.in_shape})")
         if y.size and int(y.min()) < 0:
-            raise ValueError(f"InverseTable {self.name}: inputs are magnitudes (>= 0)")
+            raise FormatError(f"InverseTable {self.name}: inputs are magnitudes (>= 0)")
         S, P = self.S, self.P
         cap = 1 << (S + P)
         high = y >= self.Y2                                      # 1. the ends

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from amaranth.hdl import Const, Module, Mux, Signal, Value
 
+from .arith import Arith, Gate
 from .fixed import Saturations, Shape
 from .rtl_fixed import FixedValue, as_shape, constant_product, pipelined_product, tree_sum
 
@@ -72,10 +73,9 @@ class PBool:
 _CURRENT: list = []
 
 
-class RtlGate:
-    """The hardware form of hw.arith.Gate: the condition travels with the values instead of subsetting."""
-    empty = False
-    size = 1
+class RtlGate(Gate):
+    """The hardware form of hw.arith.Gate: the condition travels with the values instead of subsetting, so a
+    hardware gate is never empty and its zeros are one constant."""
 
     def __init__(self, ar: "PipeArith", cond: PBool, parent: "RtlGate | None" = None):
         self.ar, self.cond, self.parent = ar, cond, parent
@@ -97,6 +97,13 @@ class RtlGate:
         out = self.ar.select(self.cond, PV(v.sig, v.q, v.stage, None), zero)
         return PV(out.sig, out.q, out.stage, None)
 
+    @property
+    def empty(self) -> bool:
+        return False
+
+    def zeros(self, q) -> PV:
+        return self.ar.zeros(q, 1)
+
 
 @dataclass
 class SatSource:
@@ -106,7 +113,7 @@ class SatSource:
     gate: PBool | None
 
 
-class PipeArith:
+class PipeArith(Arith):
     """Builds one pipeline lane in module `m`.
 
     `fmt`: quantity -> Shape (hw/formats.py FormatSet); `units`: the bit-true function unit models by
@@ -123,8 +130,8 @@ class PipeArith:
         self._n = 0
         self.sat_sources: list[SatSource] = []
         self.const_sat = Saturations()
+        self.memories: list[dict] = []         # the function units' memories, named by their place
         self.depth = 0
-        self.n_registers_bits = 0
 
     def __enter__(self):
         _CURRENT.append(self)
@@ -144,7 +151,6 @@ class PipeArith:
     def _reg(self, expr, shape, what):
         r = Signal(shape, name=self._name(what))
         self.m.d.sync += r.eq(expr)
-        self.n_registers_bits += r.shape().width
         return r
 
     def valid_at(self, stage: int) -> Value:
@@ -202,7 +208,7 @@ class PipeArith:
         s = self._stage(*vals)
         return 0 if s is None else s
 
-    # ---- the arithmetic interface (hw/arith.py)
+    # ---- the arithmetic interface (hw/arith.py Arith)
     def const(self, q, value) -> PV:
         if isinstance(value, np.ndarray) and value.ndim > 0:
             raise ValueError(f"constant '{q}' is an array: per-item values come through param()")
@@ -255,7 +261,6 @@ class PipeArith:
             c = Const(cv.sig.value, fc.raw.shape())
             built = constant_product(self.m, x.raw, c, name)
         p, lat = built or pipelined_product(self.m, fa.raw, fb.raw, name)
-        self.n_registers_bits += p.shape().width
         rounded = FixedValue(p, fa.f + fb.f).round(self.shape(q))
         return self._result(rounded, q, s + lat, self._gate(a, b), "mul")
 
@@ -319,7 +324,7 @@ class PipeArith:
         s = self._s(a)
         model = self.units[q]
         unit = RsqrtTableUnit(model) if isinstance(model, RsqrtTable) else RsqrtUnit(model)
-        self.m.submodules[self._name("rsqrt_" + q)] = unit
+        self._add_unit(self._name("rsqrt_" + q), unit)
         self.m.d.comb += [unit.i.payload.eq(self.at(a, s)), unit.i.valid.eq(self.valid_at(s))]
         out = s + unit.latency
         self.valid_at(out)
@@ -342,7 +347,7 @@ class PipeArith:
                              f"has {len(model.out_shapes)}")
         s = self._s(mag)
         unit = InverseTableUnit(model)
-        self.m.submodules[self._name("inverse_" + curve.name)] = unit
+        self._add_unit(self._name("inverse_" + curve.name), unit)
         self.m.d.comb += [unit.i.payload.eq(self.at(mag, s)), unit.i.valid.eq(self.valid_at(s))]
         out = s + unit.latency
         self.valid_at(out)
@@ -350,6 +355,10 @@ class PipeArith:
         self.sat_sources.append(SatSource(model.name, o.saturations, out, mag.gate))
         outs = [PV(getattr(o, f), q, out, mag.gate) for f, q in zip(unit.output_fields, curve.outputs)]
         return PBool(o.below, out, mag.gate), PBool(o.above, out, mag.gate), outs
+
+    def _add_unit(self, name, unit):
+        self.m.submodules[name] = unit
+        self.memories += [{**mem, "name": f"{name}.{mem['name']}"} for mem in unit.memories]
 
     # ---- saturation accounting
     def saturation_events(self) -> list[tuple[str, Value]]:

@@ -159,6 +159,8 @@ class RsqrtUnit(wiring.Component):
             raise ValueError(f"RsqrtUnit: seed error {model.seed_relative_error():g} too large for the "
                              f"fixed internal formats")
         self.latency = 7 + (3 + 3 * PRODUCT_LATENCY) * model.newton_steps
+        # its memories, known at construction (name, depth, width): the seed ROM
+        self.memories = [{"name": "seed_rom", "depth": len(model.seed_table), "width": model.Y + 2}]
         out = model.out_shape
         super().__init__({
             "i": In(stream.Signature(_raw_shape(model.in_shape), always_ready=True)),
@@ -316,11 +318,21 @@ class RsqrtTableUnit(wiring.Component):
                             f"({model!r})")
         self.model = model
         self.latency = 8 + PRODUCT_LATENCY
+        # its memories, known at construction (name, depth, width): the table ROM
+        layout, init = self._rom_layout()
+        self.memories = [{"name": "table_rom", "depth": len(init), "width": layout.size}]
         super().__init__({
             "i": In(stream.Signature(_raw_shape(model.in_shape), always_ready=True)),
             "o": Out(stream.Signature(data.StructLayout({"value": _raw_shape(model.out_shape), "saturated": 1}),
                                       always_ready=True)),
         })
+
+    def _rom_layout(self):
+        """The table ROM's word layout (c0 - 2^Y in Y bits, the slope) and its 2^S words."""
+        md = self.model
+        layout = data.StructLayout({"c0": unsigned(md.Y), "sl": unsigned(_bits(int(md.slope.max())))})
+        init = [{"c0": int(c) - (1 << md.Y), "sl": int(v)} for c, v in zip(md.c0, md.slope)]
+        return layout, init
 
     def elaborate(self, platform):
         m = Module()
@@ -334,10 +346,8 @@ class RsqrtTableUnit(wiring.Component):
         m3, rs3, ls3, pos3 = _rsqrt_normalise(m, p, self.i.payload, md)
 
         # ---- cycle 4: table ROM
-        sl_bits = _bits(int(md.slope.max()))
-        layout = data.StructLayout({"c0": unsigned(Y), "sl": unsigned(sl_bits)})
-        rom = Memory(shape=layout, depth=1 << S,
-                     init=[{"c0": int(c) - (1 << Y), "sl": int(v)} for c, v in zip(md.c0, md.slope)])
+        layout, init = self._rom_layout()
+        rom = Memory(shape=layout, depth=1 << S, init=init)
         m.submodules.table_rom = rom
         rp = rom.read_port(domain="sync")
         o = m3[M - 1]
@@ -421,6 +431,11 @@ class InverseTableUnit(wiring.Component):
         self.output_fields = tuple(f"out{k}" for k in range(n))
         fields = {f: _raw_shape(s) for f, s in zip(self.output_fields, model.out_shapes)}
         fields.update({"below": 1, "above": 1, "saturations": unsigned(_bits(n))})
+        # its memories, known at construction (name, depth, width): one table ROM per output
+        self.memories = []
+        for k, (tab, clip, shape) in enumerate(zip(model.tabs, model.clips, model.out_shapes)):
+            layout, init = self._rom_layout(tab, clip, shape)
+            self.memories.append({"name": f"rom_{k}", "depth": len(init), "width": layout.size})
         super().__init__({
             "i": In(stream.Signature(_raw_shape(model.in_shape), always_ready=True)),
             "o": Out(stream.Signature(data.StructLayout(fields), always_ready=True)),

@@ -12,17 +12,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from golden.model import Golden, State, System, frame_steps
+from golden.model import Golden
+from golden.system import State, System, frame_steps
 
 
-def rounded_golden(sys: System, formats, units, steps: int | None = None, every: int = 1) -> np.ndarray:
+def rounded_golden(system: System, formats, units, steps: int | None = None, every: int = 1) -> np.ndarray:
     """Positions (F, N, D) in metres of the golden model whose x, v, a are rounded to `formats` every step,
     at the frames of golden.model.frame_steps(steps, every)."""
-    steps = sys.n_steps if steps is None else int(steps)
+    steps = system.n_steps if steps is None else int(steps)
     fx, fu, fa = formats["x"], formats["u"], formats["a"]
-    gold, st = Golden(sys), State.initial(sys)
+    gold, st = Golden(system), State.initial(system)
     at = frame_steps(steps, max(1, every))
-    out = np.empty((len(at),) + sys.x0.shape)
+    out = np.empty((len(at),) + system.x0.shape)
 
     def on_grid():
         st.x[:] = units.to_length(fx.to_float(fx.from_float(units.length(st.x))))

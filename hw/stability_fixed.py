@@ -1,12 +1,12 @@
-"""The measured largest stable dt of the bit-true model: golden.stability.measure with a bit-true trial.
+"""The measured largest stable dt of the bit-true model: golden.measure.measure with a bit-true trial.
 
-trial_fixed(sys, dt, ref, steps=, max_steps=, check_every=, seed=, perturb=, preset=, bit_ref=)
+trial_fixed(system, dt, ref, steps=, max_steps=, check_every=, seed=, perturb=, preset=, bit_ref=)
         -> (stable, reason or None, steps run)
     A bit-true trial at dt is stable if and only if
 
-    1. the golden trial at dt is stable (golden.stability.trial with the same arguments and the golden
-       reference run `ref`: the scene at dt, golden.stability.with_dt, run for its duration capped at
-       max_steps, or exactly `steps` steps, from the perturbed start of golden.stability._start: free nodes
+    1. the golden trial at dt is stable (golden.measure.trial with the same arguments and the golden
+       reference run `ref`: the scene at dt, golden.measure.with_dt, run for its duration capped at
+       max_steps, or exactly `steps` steps, from the perturbed start of golden.measure._start: free nodes
        displaced by PERTURB x the scene size, seeded random). If the float physics fails, the range
        analysis has nothing to derive number formats from: the trial is unstable and its reason says so;
     2. the float datapath trial at dt is stable: the run the range analysis makes (hw/datapath.py in
@@ -20,16 +20,16 @@ trial_fixed(sys, dt, ref, steps=, max_steps=, check_every=, seed=, perturb=, pre
        perturbed start positions, preset) runs the range analysis of the float datapath over the trial's
        steps from that start; the raw state starts from exactly those positions (rounded to the x format;
        the scene's v0, a0). Every check_every steps (25, as the golden trial) its frame in SI units
-       (BitTrue.frame) gets golden.stability.DivergenceTest (non-finite, a node out of the box, mechanical
+       (BitTrue.frame) gets golden.watchdog.DivergenceTest (non-finite, a node out of the box, mechanical
        energy above GROWTH x the work bound) and the comparison with a reference run (energy above LOCAL
        x the reference's local peak + FLOOR x its peak, Reference.allowed), here `bit_ref`; and its
-       saturations must not run away (hw.bittrue.check_saturations: more than 1 % of the node and
-       element updates of the check interval; it raises SimulationDiverged). Formats the preset cannot
+       saturations must not run away (hw.bittrue.RunawayWatch, judged on every step over fixed windows of
+       256 steps; it raises SimulationDiverged). Formats the preset cannot
        derive at dt from that stable float run (NoFormats: what `rheo simulate --backend fixed` would
        refuse at this dt) count as unstable too, reason given.
 
-measure_fixed(sys, preset="wide", yardstick="bit-true", **kw) -> dict
-    golden.stability.measure with trial_fixed: same bracket from the prediction, same golden reference run
+measure_fixed(system, preset="wide", yardstick="bit-true", **kw) -> dict
+    golden.measure.measure with trial_fixed: same bracket from the prediction, same golden reference run
     (at dt_ref = dt_pred / 2) for conditions 1 and 2, same geometric bisection to rel_tol, same step cap.
     A bit-true trial is never stable where the golden one is not (condition 1), so a bit-true limit below
     the golden one (at the bisection's resolution) is what the datapath and its quantisation cost. The
@@ -50,60 +50,19 @@ import dataclasses
 
 import numpy as np
 
-from golden.model import System
-from golden.stability import MAX_STEPS, PERTURB, Reference, measure, reference, trial
-from .arith import FloatArith
-from .bittrue import BitTrue, check_saturations, float_state
-from .datapath import NotSupported, Params, step
-from .formats import PRESETS
-from .units import HardwareUnits
+from golden.errors import BadArgument, RheoError, StabilityError
+from golden.system import System
+from golden.measure import MAX_STEPS, PERTURB, Reference, measure, reference, trial
+from .bittrue import BitTrue, FloatDatapath
+from .datapath import NotSupported
+from .formats import FORMAT_PRESETS
 
 YARDSTICKS = ("bit-true", "golden")
 
 
-class NoFormats(RuntimeError):
+class NoFormats(RheoError, RuntimeError):
     """The preset's formats cannot be derived from a stable float run (narrow on multi-2d at dt = 2.87e-4 s:
     the damper's f2 - f1 falls below one LSB of the force format, whose integer bits follow the peak)."""
-
-
-class _WatchedBitTrue:
-    """BitTrue as a stepper for golden.stability._run, checking saturations at every frame as
-    hw.bittrue.simulate_fixed does (a runaway raises SimulationDiverged, which ends the run)."""
-
-    def __init__(self, bt: BitTrue, preset: str):
-        self.bt, self.preset = bt, preset
-        self.last_step, self.last_sat = 0, 0
-
-    def initial_state(self):
-        return self.bt.initial_state()
-
-    def step(self, st) -> None:
-        self.bt.step(st)
-
-    def frame(self, st):
-        check_saturations(self.bt, st.step - self.last_step, self.bt.sat.total - self.last_sat, self.preset)
-        self.last_step, self.last_sat = st.step, self.bt.sat.total
-        return self.bt.frame(st)
-
-
-class _FloatDatapath:
-    """The hardware's step in float64 (the range analysis' run) as a stepper for golden.stability._run."""
-
-    def __init__(self, s: System):
-        self.sys, self.units = s, HardwareUnits.of(s)
-        self.params, self.ar = Params.of(s, self.units), FloatArith()
-
-    def initial_state(self):
-        return float_state(self.sys, self.units, self.sys.x0, self.sys.v0, self.sys.a0)
-
-    def step(self, st) -> None:
-        new = step(self.ar, st, self.params)
-        st.X, st.U, st.A, st.step = new.X, new.U, new.A, new.step
-
-    def frame(self, st):
-        x = np.stack([self.units.to_length(c) for c in st.X], 1)
-        v = np.stack([self.units.to_velocity(c) for c in st.U], 1)
-        return x, v, np.asarray(st.A, float)
 
 
 def _from_start(s: System, start) -> System:
@@ -112,14 +71,14 @@ def _from_start(s: System, start) -> System:
 
 
 def float_datapath_model(s: System, start):
-    """The `model` hook of golden.stability._run for the float datapath."""
-    return _FloatDatapath(_from_start(s, start))
+    """The `model` hook of golden.measure._run for the float datapath."""
+    return FloatDatapath(_from_start(s, start))
 
 
 def bittrue_model(preset: str):
-    """The `model` hook of golden.stability._run: BitTrue of the scene at dt whose x0 is the perturbed
+    """The `model` hook of golden.measure._run: BitTrue of the scene at dt whose x0 is the perturbed
     start, so that its range analysis and its initial state both begin where the golden trial began."""
-    _check(preset, PRESETS, "format preset")
+    _check(preset, FORMAT_PRESETS, "format preset")
 
     def model(s: System, start):
         try:
@@ -128,50 +87,50 @@ def bittrue_model(preset: str):
             raise
         except ValueError as exc:                # derive, function units: the preset cannot hold it at dt
             raise NoFormats(f"the {preset} formats cannot be derived at dt = {s.dt:.4g} s ({exc})") from None
-        return _WatchedBitTrue(bt, preset)
+        return bt
     return model
 
 
 def _check(value: str, known, what: str) -> None:
     if value not in known:
-        raise ValueError(f"unknown {what} '{value}' (known: {', '.join(known)})")
+        raise BadArgument(f"unknown {what} '{value}' (known: {', '.join(known)})")
 
 
-def trial_fixed(sys: System, dt: float, ref: Reference | None = None, steps: int | None = None,
+def trial_fixed(system: System, dt: float, ref: Reference | None = None, steps: int | None = None,
                 max_steps: int = MAX_STEPS, check_every: int = 25, seed: int = 0, perturb: float = PERTURB,
                 preset: str = "wide", bit_ref: Reference | None = None):
     """One bit-true trial at dt (module docstring); returns (stable, reason or None, steps run)."""
     model = bittrue_model(preset)
     args = dict(steps=steps, max_steps=max_steps, check_every=check_every, seed=seed, perturb=perturb)
-    ok, why, n = trial(sys, dt, ref, **args)
+    ok, why, n = trial(system, dt, ref, **args)
     if not ok:
         # the formats come from the float run, which fails here: nothing to derive them from
         return False, f"the golden trial is unstable, so no formats can be derived at this dt ({why})", n
-    ok, why, n = trial(sys, dt, ref, model=float_datapath_model, **args)
+    ok, why, n = trial(system, dt, ref, model=float_datapath_model, **args)
     if not ok:
         return False, (f"the float datapath (the range analysis' run) is unstable, so no formats can be "
                        f"derived at this dt ({why})"), n
     try:
-        ok, why, n = trial(sys, dt, bit_ref, model=model, **args)
+        ok, why, n = trial(system, dt, bit_ref, model=model, **args)
     except NoFormats as exc:                     # what a user gets at this dt: no bit-true run at all
         return False, f"bit-true ({preset}): {exc}", 0
     return ok, (None if ok else f"bit-true ({preset}): {why}"), n
 
 
-def bittrue_reference(sys: System, ref: Reference, preset: str, check_every: int = 25, seed: int = 0,
+def bittrue_reference(system: System, ref: Reference, preset: str, check_every: int = 25, seed: int = 0,
                       perturb: float = PERTURB) -> Reference:
     """The bit-true model's energy history at the golden reference's dt and length (its last check time
     is its end: _run checks at the last step)."""
     try:
-        return reference(sys, ref.dt, float(ref.t[-1]), check_every, seed, perturb, model=bittrue_model(preset))
+        return reference(system, ref.dt, float(ref.t[-1]), check_every, seed, perturb, model=bittrue_model(preset))
     except RuntimeError as exc:                  # unstable, or NoFormats: no yardstick, no measurement
-        raise RuntimeError(f"scene '{sys.name}': bit-true ({preset}) reference run: {exc}") from None
+        raise StabilityError(f"scene '{system.name}': bit-true ({preset}) reference run: {exc}") from None
 
 
-def measure_fixed(sys: System, preset: str = "wide", yardstick: str = "bit-true", **kw) -> dict:
-    """golden.stability.measure on bit-true trials of the preset (module docstring); the keys of measure
+def measure_fixed(system: System, preset: str = "wide", yardstick: str = "bit-true", **kw) -> dict:
+    """golden.measure.measure on bit-true trials of the preset (module docstring); the keys of measure
     plus preset, yardstick and bit_ref_dt (dt of the bit-true reference run, None without one)."""
-    _check(preset, PRESETS, "format preset")
+    _check(preset, FORMAT_PRESETS, "format preset")
     _check(yardstick, YARDSTICKS, "yardstick")
     own: dict = {}
 
@@ -180,6 +139,6 @@ def measure_fixed(sys: System, preset: str = "wide", yardstick: str = "bit-true"
             own["ref"] = bittrue_reference(s, ref, preset)       # once, at the first trial
         return trial_fixed(s, dt, ref, preset=preset, bit_ref=own.get("ref", ref), **k)
 
-    r = measure(sys, trial_fn=trial_fn, **kw)
+    r = measure(system, trial_fn=trial_fn, **kw)
     return {**r, "preset": preset, "yardstick": yardstick,
             "bit_ref_dt": own["ref"].dt if "ref" in own else None}

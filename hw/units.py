@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from golden.model import System
+from golden.system import System
 
 
 @dataclass(frozen=True)
@@ -26,10 +26,10 @@ class HardwareUnits:
     m_ref: float   # kg per mass unit
 
     @classmethod
-    def of(cls, sys: System) -> "HardwareUnits":
-        size = float(np.ptp(sys.x0, axis=0).max())
-        free = sys.mass[~sys.pinned] if np.any(~sys.pinned) else sys.mass
-        return cls(2.0 ** math.ceil(math.log2(max(size, 1e-9))), sys.dt, float(free.min()))
+    def of(cls, system: System) -> "HardwareUnits":
+        size = float(np.ptp(system.x0, axis=0).max())
+        free = system.mass[~system.pinned] if np.any(~system.pinned) else system.mass
+        return cls(2.0 ** math.ceil(math.log2(max(size, 1e-9))), system.dt, float(free.min()))
 
     # SI -> hardware
     def length(self, x):
@@ -56,6 +56,9 @@ class HardwareUnits:
 
     def to_velocity(self, u):
         return np.asarray(u, float) * self.ell / self.dt
+
+    def to_force(self, f):
+        return np.asarray(f, float) * self.m_ref * self.ell / self.dt ** 2
 
     def to_dict(self) -> dict:
         return {"ell_m": self.ell, "dt_s": self.dt, "m_ref_kg": self.m_ref}

@@ -17,38 +17,33 @@ segment (the damper's solve costs more as the square creeps).
 """
 from __future__ import annotations
 
-import json
 import math
 import time
 
 import numpy as np
 
+from golden.errors import BadArgument
 from golden import mesh as meshlib
-from golden.model import Golden, State, System
-from golden.scene import PRESETS
-from golden.elements import ElementParams
+from golden.model import Golden
+from golden.system import State, System
+from golden.builder import SystemBuilder
+from golden.scene import MATERIALS
 
 SIZES = (1_000, 10_000, 100_000)
 
 
 def square_system(n_elements: int) -> System:
-    """A 2D square mesh with about n_elements elements (a rectangle of n x n cells has 3 n^2 + 2 n)."""
+    """A 2D square mesh with about n_elements elements (a rectangle of n x n cells has 3 n^2 + 2 n): the
+    rheological material, node mass 1e-3 kg, bottom row pinned, under gravity."""
     n = max(1, int(round((-2 + math.sqrt(4 + 12 * n_elements)) / 6)))
     m = meshlib.rectangle(1.0, 1.0, n, n)
-    mat = PRESETS["rheological"]
-    E, N = len(m.edges), len(m.nodes)
-    l0 = np.linalg.norm(m.nodes[m.edges[:, 1]] - m.nodes[m.edges[:, 0]], axis=1)
-    elem = ElementParams.build(np.full(E, mat["k1"]), np.full(E, mat["c1"]), np.full(E, mat["a_min"]),
-                               np.full(E, mat["a_max"]), mat["a0"] * l0, np.full(E, mat["c_min"]),
-                               np.full(E, mat["c_max"]), np.full(E, mat["f1"]), np.full(E, mat["f2"]))
-    pinned = m.nodes[:, 1] == 0.0
+    b = SystemBuilder(2)
+    b.add_object("square", m, MATERIALS["rheological"], np.full(len(m.nodes), 1e-3), m.nodes[:, 1] == 0.0)
     # 50 steps: what a range analysis of its formats runs (the benchmarks step it for as long as they measure)
-    return System(f"square-{E}", 2, m.nodes, np.zeros_like(m.nodes), np.full(N, 1e-3), pinned, m.edges,
-                  np.full(E, mat["a0"]), elem, m.cells, np.zeros(N, np.int64), np.zeros(len(m.cells), np.int64),
-                  ["square"], np.array([0.0, -9.81]), 1e-5, 50, 1)
+    return b.build(f"square-{len(m.edges)}", [0.0, -9.81], 1e-5, 50, 1)
 
 
-def _timed(stepper, st, sys: System, min_seconds: float, **labels) -> dict:
+def _timed(stepper, st, system: System, min_seconds: float, **labels) -> dict:
     """Step until at least min_seconds (and 5 steps) have passed; throughput figures."""
     for _ in range(3):                       # warm-up: caches, first-call costs
         stepper.step(st)
@@ -59,51 +54,49 @@ def _timed(stepper, st, sys: System, min_seconds: float, **labels) -> dict:
         el = time.perf_counter() - t0
         if el >= min_seconds and steps >= 5:
             break
-    return dict(**labels, elements=sys.n_elements, nodes=sys.n_nodes, steps=steps, seconds=el,
-                steps_per_s=steps / el, element_updates_per_s=steps * sys.n_elements / el)
+    return dict(**labels, elements=system.n_elements, nodes=system.n_nodes, steps=steps, seconds=el,
+                steps_per_s=steps / el, element_updates_per_s=steps * system.n_elements / el)
 
 
-def _segment(stepper, sys: System, steps: int, min_seconds: float) -> dict:
+def _segment(stepper, system: System, steps: int, min_seconds: float) -> dict:
     """Steps/s over one trajectory segment: `steps` steps after 3 warm-up steps from the initial state, run
     again from the start until min_seconds have passed (so that backends of different speeds are timed on
     the same states: the damper's solve costs more as elements creep)."""
     runs, el = 0, 0.0
     while True:
-        st = stepper.initial_state() if hasattr(stepper, "initial_state") else State.initial(sys)
-        run_steps = stepper.advance if hasattr(stepper, "advance") else (
-            lambda s, n: [stepper.step(s) for _ in range(n)])
-        run_steps(st, 3)                           # warm-up: compilation, caches
+        st = stepper.initial_state()
+        stepper.advance(st, 3)                     # warm-up: compilation, caches
         t0 = time.perf_counter()
-        run_steps(st, steps)
+        stepper.advance(st, steps)
         el += time.perf_counter() - t0
         runs += 1
         if el >= min_seconds:
             return dict(steps=steps * runs, seconds=el, steps_per_s=steps * runs / el)
 
 
-def compare_cpu(sys: System, min_seconds: float = 1.0, threads=(1, 2), c_reference: bool = False) -> dict:
+def compare_cpu(system: System, min_seconds: float = 1.0, threads=(1, 2), c_reference: bool = False) -> dict:
     """The golden model and the cpu backend (each thread count) on the same trajectory segment, and the
     hand-vectorised C loop of bench/square.c when asked (the benchmark square only)."""
     from sim.cpu import Cpu
-    g = _timed(Golden(sys), State.initial(sys), sys, min_seconds)
+    g = _timed(Golden(system), State.initial(system), system, min_seconds)
     steps = g["steps"]
-    row = dict(elements=sys.n_elements, nodes=sys.n_nodes, segment_steps=steps + 3, golden_steps_per_s=g["steps_per_s"])
+    row = dict(elements=system.n_elements, nodes=system.n_nodes, segment_steps=steps + 3, golden_steps_per_s=g["steps_per_s"])
     best = None
     for n in threads:
-        stepper = Cpu(sys, threads=n)
-        row[f"cpu_{stepper.threads}_threads_steps_per_s"] = r = _segment(stepper, sys, steps, min_seconds)["steps_per_s"]
+        stepper = Cpu(system, threads=n)
+        row[f"cpu_{stepper.threads}_threads_steps_per_s"] = r = _segment(stepper, system, steps, min_seconds)["steps_per_s"]
         if best is None or r > best[1]:
             best = (stepper.threads, r)
-    auto = Cpu(sys).threads
+    auto = Cpu(system).threads
     row.update(cpu_threads=auto, cpu_steps_per_s=row.get(f"cpu_{auto}_threads_steps_per_s", best[1]),
                fastest_threads=best[0])
     row["cpu_ratio_to_golden"] = row["cpu_steps_per_s"] / row["golden_steps_per_s"]
     if c_reference:
-        row.update(_c_reference(sys, steps, min_seconds, row["cpu_steps_per_s"]))
+        row.update(_c_reference(system, steps, min_seconds, row["cpu_steps_per_s"]))
     return row
 
 
-def _c_reference(sys: System, steps: int, min_seconds: float, cpu_steps_per_s: float) -> dict:
+def _c_reference(system: System, steps: int, min_seconds: float, cpu_steps_per_s: float) -> dict:
     """bench/square.c on the same segment, its result checked against the cpu backend first."""
     import importlib.util
     from pathlib import Path
@@ -115,95 +108,90 @@ def _c_reference(sys: System, steps: int, min_seconds: float, cpu_steps_per_s: f
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     try:
-        c = mod.CSquare(sys)
+        c = mod.CSquare(system)
     except mod.Unavailable as exc:
         return dict(c_reference=f"not available: {exc}")
-    ref, st = Cpu(sys, 1), State.initial(sys)
+    ref, st = Cpu(system, 1), State.initial(system)
     c.advance(steps + 3)
     ref.advance(st, steps + 3)
     x, v, a = c.state()
-    size = float(np.ptp(sys.x0, axis=0).max())
+    size = float(np.ptp(system.x0, axis=0).max())
     err = max(float(np.abs(x - st.x).max()) / size, float(np.abs(a - st.a).max()))
     if not err <= 1e-12:
         raise RuntimeError(f"bench/square.c differs from the cpu backend by {err:.3g} after {steps + 3} steps")
 
     class _Stepper:                                   # _segment's interface over the C state
         def initial_state(self):
-            self.c = mod.CSquare(sys)
-            return State.initial(sys)
+            self.c = mod.CSquare(system)
+            return State.initial(system)
 
         def advance(self, st_, n):
             self.c.advance(n)
-    r = _segment(_Stepper(), sys, steps, min_seconds)["steps_per_s"]
+    r = _segment(_Stepper(), system, steps, min_seconds)["steps_per_s"]
     return dict(c_reference_steps_per_s=r, c_reference_max_difference=err, cpu_ratio_to_c_reference=cpu_steps_per_s / r)
 
 
 def bench_cpu(n_elements: int, min_seconds: float = 1.0) -> dict:
-    sys = square_system(n_elements)
-    return dict(backend="cpu", scene=sys.name, **compare_cpu(sys, min_seconds, c_reference=True))
+    system = square_system(n_elements)
+    return dict(backend="cpu", scene=system.name, **compare_cpu(system, min_seconds, c_reference=True))
 
 
 def bench_golden(n_elements: int, min_seconds: float = 1.0) -> dict:
-    sys = square_system(n_elements)
-    return _timed(Golden(sys), State.initial(sys), sys, min_seconds, backend="golden")
+    system = square_system(n_elements)
+    return _timed(Golden(system), State.initial(system), system, min_seconds, backend="golden")
 
 
 def bench_fixed(n_elements: int, min_seconds: float = 1.0, preset: str = "wide") -> dict:
     """The bit-true model on the same mesh (formats from a short range analysis of its first steps)."""
     from hw.bittrue import BitTrue
-    sys = square_system(n_elements)
-    bt = BitTrue(sys, preset)
-    return _timed(bt, bt.initial_state(), sys, min_seconds, backend="fixed", preset=preset)
+    system = square_system(n_elements)
+    bt = BitTrue(system, preset)
+    return _timed(bt, bt.initial_state(), system, min_seconds, backend="fixed", preset=preset)
 
 
-def bench_fpga(sys: System, preset: str = "narrow", lanes: int = 1, node_lanes: int = 1,
+def bench_fpga(system: System, preset: str = "narrow", lanes: int = 1, node_lanes: int = 1,
                simulator: str = "verilator", steps: int = 2, fmax_mhz: float | None = None,
                device: str = "ecp5-85k", min_seconds: float = 1.0, range_steps: int | None = None,
                log=None) -> dict:
-    """Modelled FPGA throughput of `sys`'s specialised core and the golden model's measured throughput.
+    """Modelled FPGA throughput of `system`'s specialised core and the golden model's measured throughput.
 
     Cycles per step come from the HDL simulation (the core's CYCLES register over `steps` steps from the
     initial state, whose read-back must equal the bit-true model's). With `fmax_mhz` None the core is
     placed and routed for `device` (once per Verilog: DIR/synth-DEVICE/synth.json beside the build).
     """
     from hw.bittrue import BitTrue
+    from hw.datapath import state_difference
     from .hdlsim import emit_core, run_job
-    from .synth import synthesize
+    from .synth import synthesize_cached
     say = log or (lambda m: None)
-    say(f"{sys.name}: formats (preset {preset})")
-    bt = BitTrue(sys, preset, range_steps=range_steps)
+    say(f"{system.name}: formats (preset {preset})")
+    bt = BitTrue(system, preset, range_steps=range_steps)
     core_dir, man, drv = emit_core(bt, lanes, node_lanes)
     say(f"{simulator}: {steps} steps of the core in {core_dir}")
     st = bt.initial_state()
     out = run_job(simulator, core_dir, drv, drv.load_words(st.X, st.U, st.A, 0), [steps])
     for _ in range(steps):
         bt.step(st)
-    X, U, A = out["frames"][0][:3]
-    if not (all(np.array_equal(a, b) for a, b in zip(X + U, st.X + st.U)) and np.array_equal(A, st.A)):
-        raise RuntimeError(f"{simulator}: the core's state after {steps} steps differs from the bit-true model")
+    X, U, A, step = out["frames"][0][:4]
+    if (why := state_difference(st, X, U, A, step)) is not None:
+        raise RuntimeError(f"{simulator}: the core's state after {steps} steps differs from the bit-true model: {why}")
     cycles = out["cycles"][0] / steps
-    row = dict(backend="fpga", scene=sys.name, elements=sys.n_elements, nodes=sys.n_nodes, preset=preset,
+    row = dict(backend="fpga", scene=system.name, elements=system.n_elements, nodes=system.n_nodes, preset=preset,
                lanes=lanes, node_lanes=node_lanes, simulator=simulator, cycles_per_step=cycles,
                cycles_per_step_schedule=man["cycles_per_step"]["value"],
                simulator_cycles_per_s=out["cycles"][0] / max(out["wall_s"], 1e-9), core_dir=str(core_dir))
     if fmax_mhz is None:
-        synth_dir = core_dir / f"synth-{device}"
-        cached = synth_dir / "synth.json"
-        if cached.is_file():
-            say(f"place and route: cached {cached}")
-            res = json.loads(cached.read_text())
-        else:
-            say(f"place and route for {device} (Yosys + nextpnr; tens of minutes for large cores)")
-            res = synthesize(core_dir / f"{man['top']}.v", man["top"], synth_dir, device=device,
-                             progress=log is not None)
+        say(f"place and route for {device} (Yosys + nextpnr, once per Verilog; tens of minutes for large cores)")
+        res, synth_dir = synthesize_cached(core_dir / f"{man['top']}.v", man["top"], device=device,
+                                           progress=log is not None)
         fmax_mhz, source = res["fmax_mhz"], f"measured: nextpnr-ecp5 on {device} ({synth_dir})"
         row["resources"] = {k: res[k] for k in ("luts", "flip_flops", "mult18x18", "block_rams")}
     else:
         source = "stated (--fmax-mhz)"
     row.update(fmax_mhz=fmax_mhz, fmax_source=source, steps_per_s=fmax_mhz * 1e6 / cycles,
-               element_updates_per_s=fmax_mhz * 1e6 / cycles * sys.n_elements)
+               element_updates_per_s=fmax_mhz * 1e6 / cycles * system.n_elements)
     say("golden model and the cpu backend on the same scene")
-    cmp = compare_cpu(sys, min_seconds)
+    cmp = compare_cpu(system, min_seconds)
     row.update(golden_steps_per_s=cmp["golden_steps_per_s"], ratio_to_golden=row["steps_per_s"] / cmp["golden_steps_per_s"],
                cpu_steps_per_s=cmp["cpu_steps_per_s"], cpu_threads=cmp["cpu_threads"],
                ratio_to_cpu=row["steps_per_s"] / cmp["cpu_steps_per_s"])
@@ -219,7 +207,7 @@ def run(backend: str, sizes=SIZES, min_seconds: float = 1.0, scene: System | Non
             return [bench_fpga(scene, min_seconds=min_seconds, **fpga)]
         if backend == "cpu":
             return [dict(backend="cpu", scene=scene.name, **compare_cpu(scene, min_seconds))]
-        raise ValueError(f"backend '{backend}' benchmarks generated meshes only (no scene)")
+        raise BadArgument(f"backend '{backend}' benchmarks generated meshes only (no scene)")
     if backend == "golden":
         return [bench_golden(n, min_seconds) for n in sizes]
     if backend == "cpu":
@@ -237,4 +225,4 @@ def run(backend: str, sizes=SIZES, min_seconds: float = 1.0, scene: System | Non
             f["ratio_to_golden"] = f["steps_per_s"] / g["steps_per_s"]
             rows.append(f)
         return rows
-    raise ValueError(f"backend '{backend}' has no benchmark (available: golden, cpu, fixed, fpga)")
+    raise BadArgument(f"backend '{backend}' has no benchmark (available: golden, cpu, fixed, fpga)")

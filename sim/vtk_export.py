@@ -17,7 +17,7 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from sim.render import load_run
+from sim.runfile import load_run
 
 EXPORT_KEYS = ("t", "x", "v", "a", "edges", "cells", "node_object", "pinned")
 PVD_NAME = "run.pvd"
@@ -50,14 +50,18 @@ def write_pvd(path: Path, times, files) -> Path:
 
 def export_vtk(npz_path, out_dir) -> list[Path]:
     """Write out_dir/frame_00000.vtu ... (one per frame) and out_dir/run.pvd; returns the .vtu paths in
-    frame order. out_dir is created if needed; existing files of the same names are overwritten."""
-    import meshio
-
+    frame order. The directory is written whole or not at all (sim.runfile.output_directory: an existing
+    out_dir is replaced when the new one is complete; files a user put there are kept)."""
+    from .runfile import check_output_dir, output_directory
+    final = check_output_dir(out_dir)
     run = load_run(npz_path, EXPORT_KEYS)
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise ValueError(f"output directory {out_dir} exists and is not a directory")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    with output_directory(final) as tmp:
+        names = _export(run, tmp)
+    return [final / n for n in names]
+
+
+def _export(run: dict, out_dir: Path) -> list[str]:
+    import meshio
 
     t, x, v, a = run["t"], run["x"], run["v"], run["a"]
     edges, cells, D = run["edges"], run["cells"], run["dim"]
@@ -97,6 +101,6 @@ def export_vtk(npz_path, out_dir) -> list[Path]:
         )
         path = out_dir / frame_name(i, F)
         meshio.write(path, mesh, file_format="vtu")
-        written.append(path)
-    write_pvd(out_dir / PVD_NAME, t, [p.name for p in written])
+        written.append(path.name)
+    write_pvd(out_dir / PVD_NAME, t, written)
     return written

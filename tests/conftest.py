@@ -4,22 +4,22 @@ from __future__ import annotations
 
 import functools
 
-from golden.scene import compile_scene, load_scene
+from golden.scene import load_scene
 
 
 @functools.lru_cache(maxsize=None)
-def system(name: str):
-    return compile_scene(load_scene(name))
+def scene_system(name: str):
+    return load_scene(name)
 
 
 @functools.lru_cache(maxsize=None)
 def formats(name: str, preset: str):
     """The formats `rheo simulate --backend fixed` derives for a built-in scene (full range analysis)."""
     from hw.bittrue import BitTrue
-    return BitTrue(system(name), preset).formats
+    return BitTrue(scene_system(name), preset).formats
 
 
 def bittrue(name: str, preset: str):
     """A fresh bit-true model of a built-in scene with the cached formats."""
     from hw.bittrue import BitTrue
-    return BitTrue(system(name), preset, formats=formats(name, preset))
+    return BitTrue(scene_system(name), preset, formats=formats(name, preset))

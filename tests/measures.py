@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 
 
-def quarter_sinks(sys, run):
+def quarter_sinks(system, run):
     """Sink of the top face's mean height (last axis) in the first and in the last quarter of the run."""
-    up = sys.dim - 1
-    top = np.flatnonzero(sys.x0[:, up] == sys.x0[:, up].max())
+    up = system.dim - 1
+    top = np.flatnonzero(system.x0[:, up] == system.x0[:, up].max())
     h = run.x[:, top, up].mean(1)
     T = run.t[-1]
     q = [np.interp(k * T / 4, run.t, h) for k in range(5)]

@@ -157,6 +157,22 @@ def _edge_index_out_of_range(d, tmp):
     _obj(d)["mesh"]["edges"] = [[0, 1], [1, 9]]
 
 
+def _fractional_cell_index(d, tmp):
+    _obj(d)["mesh"]["cells"] = [[0, 1.9, 2]]       # never truncated to 1
+
+
+def _fractional_edge_index(d, tmp):
+    _obj(d)["mesh"]["edges"] = [[0, 1], [1, 1.9]]
+
+
+def _fractional_load_node(d, tmp):
+    d["loads"][0]["nodes"] = [1.9]
+
+
+def _fractional_pinned_node(d, tmp):
+    _obj(d)["pinned"] = [0.0]
+
+
 def _ragged_nodes(d, tmp):
     _obj(d)["mesh"]["nodes"] = [[0.0, 0.0], [0.01], [0.0, 0.01]]
 
@@ -291,6 +307,19 @@ def _name_not_a_string(d, tmp):
     d["name"] = 7
 
 
+def _probe(**change):
+    """A [probe] table on the base scene with one change (None removes a key)."""
+    def mutate(d, tmp):
+        pb = {"radius": 0.004, "K": 500.0, "C": 1.0, "mu": 0.3, "position": [0.005, 0.015], "depth": 0.002}
+        for k, v in change.items():
+            if v is None:
+                pb.pop(k)
+            else:
+                pb[k] = v
+        d["probe"] = pb
+    return mutate
+
+
 # (id, mutate, words that must all appear in the error line)
 CASES = [
     ("name-is-a-path", _name_is_a_path, ["'name'", "plain name", "RUN"]),
@@ -308,6 +337,10 @@ CASES = [
     ("inverted-triangle", _inverted_triangle, ["triangle 0", "inverted"]),
     ("edge-to-itself", _self_edge, ["node 2 to itself"]),
     ("edge-index-out-of-range", _edge_index_out_of_range, ["edges", "outside 0..2"]),
+    ("fractional-cell-index", _fractional_cell_index, ["'cells'", "1.9", "not an integer"]),
+    ("fractional-edge-index", _fractional_edge_index, ["'edges'", "1.9", "not an integer"]),
+    ("fractional-load-node", _fractional_load_node, ["[loads.0]", "'nodes'", "node indices"]),
+    ("fractional-pinned-node", _fractional_pinned_node, ["'pinned'", "node indices"]),
     ("ragged-nodes", _ragged_nodes, ["'nodes'", "rows of 2"]),
     ("nan-parameter", _nan_parameter, ["'k1'", "finite", "nan"]),
     ("inf-dt", _inf_dt, ["'dt'", "finite", "inf"]),
@@ -339,6 +372,20 @@ CASES = [
     ("duplicate-object-names", _duplicate_object_names, ["[objects.1]", "unique", "'tri'"]),
     ("3d-mesh-in-2d-scene", _mesh_wrong_dim, ["box", "dim = 2"]),
     ("floor-without-K", _floor_without_k, ["[world.floor]", "missing", "'K'"]),
+    ("probe-without-radius", _probe(radius=None), ["[probe]", "missing", "'radius'"]),
+    ("probe-without-position", _probe(position=None), ["[probe]", "missing", "'position'"]),
+    ("probe-zero-radius", _probe(radius=0.0), ["[probe]", "'radius'", "> 0", "got 0"]),
+    ("probe-negative-K", _probe(K=-5.0), ["[probe]", "'K'", "> 0", "-5"]),
+    ("probe-negative-C", _probe(C=-1.0), ["[probe]", "'C'", ">= 0"]),
+    ("probe-nan-mu", _probe(mu=math.nan), ["[probe]", "'mu'", "finite"]),
+    ("probe-zero-k_f", _probe(k_f=0.0), ["[probe]", "'k_f'", "> 0"]),
+    ("probe-position-3d-in-2d", _probe(position=[0.0, 0.0, 0.0]), ["[probe]", "'position'", "list of 2 numbers"]),
+    ("probe-steps-per-sample-0", _probe(steps_per_sample=0), ["[probe]", "'steps_per_sample'", ">= 1"]),
+    ("probe-steps-per-sample-float", _probe(steps_per_sample=10.0), ["[probe]", "'steps_per_sample'", "integer"]),
+    ("probe-negative-depth", _probe(depth=-0.001), ["[probe]", "'depth'", ">= 0"]),
+    ("probe-zero-poke_time", _probe(poke_time=0.0), ["[probe]", "'poke_time'", "> 0"]),
+    ("probe-unknown-key", _probe(stiffness=1.0), ["[probe]", "unknown key", "'stiffness'"]),
+    ("probe-not-a-table", lambda d, tmp: d.update(probe=[1, 2]), ["[probe]", "must be a table"]),
 ]
 
 
@@ -386,6 +433,21 @@ def test_base_scene_is_valid(tmp_path):
     with np.load(out) as f:
         assert f["x"].shape == (3, 3, 2)
         assert str(f["scene"]) == "bad-input-base"
+
+
+def test_base_scene_with_a_probe_is_valid(tmp_path):
+    """Control for the [probe] cases: the base scene with a valid probe runs (the probe follows its design
+    poke), and so it does through `rheo haptic`."""
+    d = base_scene()
+    _probe()(d, tmp_path)
+    scene = tmp_path / "scene.toml"
+    scene.write_text(dumps(d))
+    out = tmp_path / "r.npz"
+    proc = rheo("simulate", scene, "--steps", 2, "--out", out)
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    (tmp_path / "t.csv").write_text("dx,dy\n0,0\n0,-0.0001\n")
+    proc = rheo("haptic", scene, "--trajectory", tmp_path / "t.csv", "--out", tmp_path / "h.npz")
+    assert proc.returncode == 0 and "2 device samples" in proc.stdout, proc.stderr
 
 
 def test_readable_mesh_file_is_valid(tmp_path):
@@ -476,12 +538,12 @@ def test_output_and_build_paths_never_come_from_a_scene_name(tmp_path):
     """Names that reach paths without passing load_scene (a System built in code, a file's stem) are reduced
     to a plain file name: the build directory of a core stays inside its root."""
     import dataclasses
-    from golden.scene import compile_scene, file_stem, load_scene
+    from golden.scene import file_stem, load_scene
     from hw.bittrue import BitTrue
     from sim.hdlsim import emit_core
     assert file_stem("/abs/path/RUN") == "abs-path-RUN" and file_stem("../..") == "scene"
     assert file_stem("my scene") == "my-scene" and file_stem("press-2d-rheological") == "press-2d-rheological"
-    sys_ = dataclasses.replace(compile_scene(load_scene("creep-1d")), name=str(tmp_path / "outside" / "x"))
-    core_dir, _, _ = emit_core(BitTrue(sys_, "wide", range_steps=20), root=tmp_path / "build")
+    system = dataclasses.replace(load_scene("creep-1d"), name=str(tmp_path / "outside" / "x"))
+    core_dir, _, _ = emit_core(BitTrue(system, "wide", range_steps=20), root=tmp_path / "build")
     assert core_dir.parent == tmp_path / "build"
     assert not (tmp_path / "outside").exists()

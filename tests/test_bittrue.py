@@ -9,12 +9,13 @@ import numpy as np
 import pytest
 
 from golden.model import simulate
-from golden.scene import builtin_names, compile_scene, load_scene
-from hw.bittrue import BitTrue, simulate_fixed
+from golden.scene import builtin_names, load_scene
+from hw.bittrue import BitTrue
+from helpers import run_fixed
 from hw.fixed import SQ, UQ, Saturations, add, mul, shift_round
-from hw.formats import FormatError
+from hw.formats import FormatError, check_scene_formats
 
-from conftest import bittrue as cached_bittrue, system
+from conftest import bittrue as cached_bittrue, scene_system
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -50,6 +51,7 @@ def test_formats_of_mixed_binary_points_add_exactly():
 SENSITIVITY_FACTOR = 3.0       # a sensitive scene's bit-true error may reach 3x its sensitivity floor
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", [n for n in builtin_names() if n != "creep-1d"])
 def test_wide_preset_within_budget_of_golden_over_the_whole_scene(name):
     """Max position error of the wide preset <= 1e-4 of the object size, every frame, full duration.
@@ -62,37 +64,39 @@ def test_wide_preset_within_budget_of_golden_over_the_whole_scene(name):
     tests/test_bittrue.py::test_one_step_error_of_the_wide_preset_is_small checks such scenes step by step.
     """
     from hw.sensitivity import rounded_golden
-    sys_ = compile_scene(load_scene(name))
-    every = max(1, sys_.n_steps // 50)
-    gold = simulate(sys_, every=every)
-    run, raws, bt = simulate_fixed(sys_, "wide", every=every, bittrue=cached_bittrue(name, "wide"))
-    size = np.ptp(sys_.x0, axis=0).max()
+    system = load_scene(name)
+    every = max(1, system.n_steps // 50)
+    gold = simulate(system, every=every)
+    run, raws, bt = run_fixed(system, "wide", every=every, bittrue=cached_bittrue(name, "wide"))
+    size = np.ptp(system.x0, axis=0).max()
     err = np.abs(run.x - gold.x).max() / size
     assert bt.sat.total == 0, dict(bt.sat)
     if err <= 1e-4:
         return
-    floor = np.abs(rounded_golden(sys_, bt.formats, bt.units, every=every) - gold.x).max() / size
+    floor = np.abs(rounded_golden(system, bt.formats, bt.units, every=every) - gold.x).max() / size
     assert floor > 1e-4, f"error {err:.2e} of the object size, but the scene is not sensitive (floor {floor:.2e})"
     assert err <= SENSITIVITY_FACTOR * floor, (err, floor)
 
 
-@pytest.mark.parametrize("name", [n for n in builtin_names() if system(n).collision is not None])
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [n for n in builtin_names() if scene_system(n).collision is not None])
 def test_one_step_error_of_the_wide_preset_is_small(name):
     """From the same golden state, one bit-true step equals one golden step to 1e-5 of the scene's peak
     speed, on every (sampled) step of the scene, contacts included: the datapath computes the physics
     step by step, so what parts whole trajectories of sensitive scenes is the scene, not the datapath."""
-    from golden.model import Golden, State
+    from golden.model import Golden
+    from golden.system import State
     from hw.datapath import HwState, step
     bt = cached_bittrue(name, "wide")
-    sys_, fm, un = bt.sys, bt.formats, bt.units
-    gold, st = Golden(sys_), State.initial(sys_)
-    every = 5 if sys_.dim == 2 else 25
+    system, fm, un = bt.system, bt.formats, bt.units
+    gold, st = Golden(system), State.initial(system)
+    every = 5 if system.dim == 2 else 25
     worst, vmax = 0.0, 0.0
-    for n in range(sys_.n_steps):
+    for n in range(system.n_steps):
         check = n % every == 0
         if check:
-            X = [fm["x"].from_float(un.length(st.x[:, k])) for k in range(sys_.dim)]
-            U = [fm["u"].from_float(un.velocity(st.v[:, k])) for k in range(sys_.dim)]
+            X = [fm["x"].from_float(un.length(st.x[:, k])) for k in range(system.dim)]
+            U = [fm["u"].from_float(un.velocity(st.v[:, k])) for k in range(system.dim)]
             new = step(bt.ar, HwState(X, U, fm["a"].from_float(st.a), st.step), bt.params)
         gold.step(st)
         vmax = max(vmax, np.abs(st.v).max())
@@ -103,22 +107,24 @@ def test_one_step_error_of_the_wide_preset_is_small(name):
     assert worst <= 1e-5 * vmax, (worst, vmax)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", ["wide", "medium"])
 def test_creep_permanent_set_in_fixed_point(preset):
     """Round-to-nearest stagnation would destroy the permanent set: it must stay within 0.5 %."""
-    sys_ = compile_scene(load_scene("creep-1d"))
+    system = load_scene("creep-1d")
     steps = 30_000              # 0.3 s: the 0.2 s pulse and ten Voigt time constants c1/k1 of recovery
-    run, _, bt = simulate_fixed(sys_, preset, steps=steps, every=steps)
+    run, _, bt = run_fixed(system, preset, steps=steps, every=steps)
     expected = 0.05 * 0.2 / 5.0
     got = run.x[-1, 1, 0] - 0.01
     assert abs(got - expected) <= 0.005 * expected, (got, expected)
     assert bt.sat.total == 0
 
 
+@pytest.mark.slow
 def test_narrow_preset_shows_stagnation_on_creep():
     """The narrow preset loses the creep increments (the reason the presets exist): the report must show it."""
-    sys_ = compile_scene(load_scene("creep-1d"))
-    run, _, _ = simulate_fixed(sys_, "narrow", steps=30_000, every=30_000)
+    system = load_scene("creep-1d")
+    run, _, _ = run_fixed(system, "narrow", steps=30_000, every=30_000)
     assert abs(run.x[-1, 1, 0] - 0.01 - 0.002) > 0.1 * 0.002
 
 
@@ -137,12 +143,12 @@ def test_internal_forces_cancel_bit_for_bit():
             Spy.nonzero = np.any(out.x != 0)
             return out
 
-    sys_ = compile_scene(load_scene("press-2d-rheological"))
-    sys_.loads, sys_.floor = [], None
-    sys_.pinned = np.zeros_like(sys_.pinned)
+    system = load_scene("press-2d-rheological")
+    system.loads, system.floor = [], None
+    system.pinned = np.zeros_like(system.pinned)
     rng = np.random.default_rng(0)
-    sys_.x0 = sys_.x0 + rng.normal(0, 3e-4, sys_.x0.shape)
-    bt = BitTrue(sys_, "wide", range_steps=300)
+    system.x0 = system.x0 + rng.normal(0, 3e-4, system.x0.shape)
+    bt = BitTrue(system, "wide", range_steps=300)
     bt.ar.__class__ = Spy
     st = bt.initial_state()
     for _ in range(300):
@@ -172,36 +178,36 @@ def test_scene_can_override_a_format(tmp_path):
     text = (ROOT / "golden" / "scenes" / "press-2d-viscoelastic.toml").read_text()
     p = tmp_path / "s.toml"
     p.write_text(text + '\n[formats]\nx = "SQ(3, 20)"\n')
-    sys_ = compile_scene(load_scene(p))
+    system = load_scene(p)
     # the whole run's range analysis: a shorter one never sees the press, and its load constant would not
     # fit the force accumulator (refused, tests/test_model_v2.py)
-    bt = BitTrue(sys_, "wide")
+    bt = BitTrue(system, "wide")
     assert str(bt.formats["x"]) == "SQ(3, 20)"
-    assert str(BitTrue(compile_scene(load_scene("press-2d-viscoelastic")), "wide").formats["x"]) != "SQ(3, 20)"
+    assert str(BitTrue(load_scene("press-2d-viscoelastic"), "wide").formats["x"]) != "SQ(3, 20)"
     p.write_text(text + '\n[formats]\nxx = "SQ(3, 20)"\n')
     with pytest.raises(ValueError, match="unknown quantity 'xx'"):
-        load_scene(p)
+        check_scene_formats(load_scene(p))
     p.write_text(text + '\n[formats]\nx = "Q3.20"\n')
     with pytest.raises(ValueError, match=r"SQ\(i, f\)"):
-        load_scene(p)
+        check_scene_formats(load_scene(p))
 
 
 def test_runaway_saturations_stop_the_run(tmp_path):
     """Formats sized for a gentle press cannot hold a press 1000x stronger: the run stops with a message."""
-    from golden.model import SimulationDiverged
-    gentle = compile_scene(load_scene("press-2d-viscoelastic"))
+    from golden.errors import SimulationDiverged
+    gentle = load_scene("press-2d-viscoelastic")
     bt_gentle = BitTrue(gentle, "narrow", range_steps=gentle.n_steps)
     text = (ROOT / "golden" / "scenes" / "press-2d-viscoelastic.toml").read_text()
     p = tmp_path / "hard.toml"
     # 1000x: the load constant itself does not fit the force accumulator: refused before any step
     p.write_text(text.replace("force = [0.0, -0.05]", "force = [0.0, -50.0]"))
     with pytest.raises(FormatError, match="load saturates"):
-        BitTrue(compile_scene(load_scene(p)), "narrow", formats=bt_gentle.formats)
+        BitTrue(load_scene(p), "narrow", formats=bt_gentle.formats)
     # 40x: the load fits, what it does to the object does not
     p.write_text(text.replace("force = [0.0, -0.05]", "force = [0.0, -2.0]"))
-    hard = compile_scene(load_scene(p))
+    hard = load_scene(p)
     bt_hard = BitTrue(hard, "narrow", formats=bt_gentle.formats)
     with pytest.raises(SimulationDiverged, match="runaway saturations"):
-        simulate_fixed(hard, "narrow", steps=3000, every=100, bittrue=bt_hard)
-    run, _, bt = simulate_fixed(gentle, "narrow", steps=3000, every=100, bittrue=BitTrue(gentle, "narrow", formats=bt_gentle.formats))
+        run_fixed(hard, "narrow", steps=3000, every=100, bittrue=bt_hard)
+    run, _, bt = run_fixed(gentle, "narrow", steps=3000, every=100, bittrue=BitTrue(gentle, "narrow", formats=bt_gentle.formats))
     assert bt.sat.total == 0

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from golden.scene import compile_scene, load_scene
+from golden.scene import load_scene
 
 
 def _row_of_blocks(tmp_path, n, jitter=0.0, seed=0):
@@ -29,7 +29,7 @@ duration = 0.01
 K = 1e3
 threshold = 0.002
 """ + "".join(objs))
-    return compile_scene(load_scene(p))
+    return load_scene(p)
 
 
 def _brute_force_contacts(col, x):
@@ -49,10 +49,10 @@ def _brute_force_contacts(col, x):
 
 @pytest.mark.parametrize("seed", range(5))
 def test_broad_phase_misses_no_contact(tmp_path, seed):
-    sys = _row_of_blocks(tmp_path, 6, jitter=0.004, seed=seed)
-    col = sys.collision
+    system = _row_of_blocks(tmp_path, 6, jitter=0.004, seed=seed)
+    col = system.collision
     rng = np.random.default_rng(seed)
-    x = sys.x0 + rng.normal(0, 5e-4, sys.x0.shape)
+    x = system.x0 + rng.normal(0, 5e-4, system.x0.shape)
     vi, fi = col.candidates(x)
     cand = set(zip(col.vertices[vi].tolist(), fi.tolist()))
     contacts = _brute_force_contacts(col, x)
@@ -63,9 +63,9 @@ def test_broad_phase_misses_no_contact(tmp_path, seed):
 def test_broad_phase_work_grows_linearly(tmp_path):
     per_facet = []
     for n in (8, 32, 128):
-        sys = _row_of_blocks(tmp_path, n)
-        col = sys.collision
-        vi, _ = col.candidates(sys.x0)
+        system = _row_of_blocks(tmp_path, n)
+        col = system.collision
+        vi, _ = col.candidates(system.x0)
         per_facet.append(len(vi) / len(col.facets))
     all_pairs_ratio = len(_row_of_blocks(tmp_path, 128).collision.vertices)   # candidates per facet if quadratic
     assert max(per_facet) < 2 * min(per_facet), per_facet

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from golden.model import simulate
-from golden.scene import builtin_names, compile_scene, load_scene
+from golden.scene import builtin_names, load_scene
 from hw.arith import FloatArith
 from hw.bittrue import float_state
 from hw.datapath import Params, step
@@ -18,17 +18,17 @@ from hw.units import HardwareUnits
 STEPS = 1500
 
 
-def _compare(sys, steps=STEPS):
-    run = simulate(sys, steps=steps, every=steps)
-    units = HardwareUnits.of(sys)
-    p = Params.of(sys, units)
-    st = float_state(sys, units, sys.x0, sys.v0, sys.a0)
+def _compare(system, steps=STEPS):
+    run = simulate(system, steps=steps, every=steps)
+    units = HardwareUnits.of(system)
+    p = Params.of(system, units)
+    st = float_state(system, units, system.x0, system.v0, system.a0)
     ar = FloatArith()
     for _ in range(steps):
         st = step(ar, st, p)
     x = np.stack([units.to_length(c) for c in st.X], 1)
     v = np.stack([units.to_velocity(c) for c in st.U], 1)
-    size = np.ptp(sys.x0, axis=0).max()
+    size = np.ptp(system.x0, axis=0).max()
     moved = np.abs(run.x[-1] - run.x[0]).max()
     return np.abs(x - run.x[-1]).max() / size, np.abs(v - run.v[-1]).max(), np.abs(st.A - run.a[-1]).max(), moved, ar
 
@@ -36,18 +36,18 @@ def _compare(sys, steps=STEPS):
 def _no_collision_scenes():
     names = []
     for n in builtin_names():
-        if compile_scene(load_scene(n)).collision is None:
+        if load_scene(n).collision is None:
             names.append(n)
     return names
 
 
 @pytest.mark.parametrize("name", _no_collision_scenes())
 def test_float_datapath_equals_golden(name):
-    sys = compile_scene(load_scene(name))
-    ex, ev, ea, moved, _ = _compare(sys)
+    system = load_scene(name)
+    ex, ev, ea, moved, _ = _compare(system)
     assert moved > 0                                       # something happened in these steps
     assert ex < 1e-12 and ea < 1e-12, (ex, ev, ea)
-    assert ev < 1e-9 * max(1.0, np.abs(sys.v0).max()), ev
+    assert ev < 1e-9 * max(1.0, np.abs(system.v0).max()), ev
 
 
 def _crush(tmp_path, dim, damper=""):
@@ -85,7 +85,7 @@ pinned = {pinned}
 nodes = [{apex}]
 force = {force}
 """)
-    return compile_scene(load_scene(p))
+    return load_scene(p)
 
 
 @pytest.mark.parametrize("damper", ["c2 = 5.0, ", ""], ids=["constant-damper", "nonlinear-damper"])
@@ -93,16 +93,17 @@ force = {force}
 def test_float_datapath_equals_golden_with_topology_floor_and_friction(tmp_path, dim, damper):
     """A cell crushed towards inversion onto a frictional floor: every optional unit is active, with a
     constant c2 and with the preset's nonlinear damper (solved exactly each step, no lag since model v2)."""
-    sys = _crush(tmp_path, dim, damper)
-    ex, ev, ea, moved, ar = _compare(sys, steps=2000)
+    system = _crush(tmp_path, dim, damper)
+    ex, ev, ea, moved, ar = _compare(system, steps=2000)
     assert {"tdist", "w", "fe"} <= set(ar.peak)           # the topology unit really acted
     assert ex < 1e-12 and ea < 1e-12, (ex, ea)
 
 
 def _collision_scenes():
-    return [n for n in builtin_names() if compile_scene(load_scene(n)).collision is not None]
+    return [n for n in builtin_names() if load_scene(n).collision is not None]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", _collision_scenes())
 def test_float_datapath_equals_golden_step_by_step_with_collisions(name, monkeypatch):
     """Collision scenes are sensitive: contact gates (within the threshold, foot on the facet) switch
@@ -110,10 +111,11 @@ def test_float_datapath_equals_golden_step_by_step_with_collisions(name, monkeyp
     whole trajectories part (tests/test_bittrue.py measures it). Here every checked step starts both
     models from the same golden state: one step of the float datapath must equal one golden step."""
     import hw.datapath as dp
-    from golden.model import Golden, State
-    sys_ = compile_scene(load_scene(name))
-    units, p = HardwareUnits.of(sys_), None
-    p = Params.of(sys_, units)
+    from golden.model import Golden
+    from golden.system import State
+    system = load_scene(name)
+    units, p = HardwareUnits.of(system), None
+    p = Params.of(system, units)
     active = []
     kernel = dp.collision_kernel
 
@@ -123,13 +125,13 @@ def test_float_datapath_equals_golden_step_by_step_with_collisions(name, monkeyp
         return gate, contribs
 
     monkeypatch.setattr(dp, "collision_kernel", spy)
-    gold, st = Golden(sys_), State.initial(sys_)
-    every = 7 if sys_.dim == 2 else 29
+    gold, st = Golden(system), State.initial(system)
+    every = 7 if system.dim == 2 else 29
     worst_v = worst_x = 0.0
-    size = np.ptp(sys_.x0, axis=0).max()
-    for n in range(sys_.n_steps):
+    size = np.ptp(system.x0, axis=0).max()
+    for n in range(system.n_steps):
         if n % every == 0:
-            hs = float_state(sys_, units, st.x, st.v, st.a, st.step)
+            hs = float_state(system, units, st.x, st.v, st.a, st.step)
             new = step(FloatArith(), hs, p)
             gold.step(st)
             v = np.stack([units.to_velocity(c) for c in new.U], 1)

@@ -20,12 +20,17 @@ import numpy as np
 import pytest
 
 from golden.mesh import signed_measure
-from golden.model import SimulationDiverged, simulate
-from golden.scene import compile_scene, load_scene
-from golden.stability import measure, predict, with_dt
-from hw.bittrue import BitTrue, simulate_fixed
+from golden.errors import SimulationDiverged
+from golden.model import simulate
+from golden.scene import load_scene
+from golden.measure import measure, with_dt
+from golden.stability import predict
+from hw.bittrue import BitTrue
+from helpers import run_fixed
 from hw.formats import CONSTANTS, QUANTITIES
-from sim.stability_cmd import refuse_if_unstable
+from sim.cli.stability import refuse_if_unstable
+
+pytestmark = pytest.mark.slow      # `make test-fast` leaves these out
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = Path(__file__).resolve().parent / "scenes"
@@ -44,7 +49,7 @@ def scene_file(name: str) -> Path:
 
 
 def load(name: str):
-    return compile_scene(load_scene(scene_file(name)))
+    return load_scene(scene_file(name))
 
 
 def variant_text(name: str, replacements: dict) -> str:
@@ -60,7 +65,7 @@ def variant(tmp_path: Path, name: str, replacements: dict, out: str | None = Non
     """Compile a variant of a scene file (written next to the test's temporary files)."""
     p = tmp_path / f"{out or name + '-variant'}.toml"
     p.write_text(variant_text(name, replacements))
-    return compile_scene(load_scene(p))
+    return load_scene(p)
 
 
 def run_energy(x, v, mass, pinned, edges, k1, L, a):
@@ -121,7 +126,7 @@ def stiff_runs(tmp_path):
         dt = 0.9 * predict(stiff)["dt_pred"]
         s = dataclasses.replace(stiff, dt=dt, n_steps=int(round(0.02 / dt)), every=10)
         gold = simulate(s)
-        fixed, _, bt = simulate_fixed(s, "wide")
+        fixed, _, bt = run_fixed(s, "wide")
         return s, gold, fixed, bt
     return cached("stiff", make)
 
@@ -188,7 +193,7 @@ def light_runs(tmp_path):
         dt = 0.9 * predict(light)["dt_pred"]
         s = dataclasses.replace(light, dt=dt, n_steps=LIGHT_STEPS, every=LIGHT_STEPS // 40)
         gold = simulate(s)
-        fixed, _, bt = simulate_fixed(s, "wide")
+        fixed, _, bt = run_fixed(s, "wide")
         return s, gold, fixed, bt
     return cached("light", make)
 
@@ -216,7 +221,7 @@ CREEP_F, CREEP_C2, CREEP_END, CREEP_L0 = 0.05, 5.0, 0.2, 0.01      # creep-1d: F
 
 
 def creep_measured():
-    return cached("creep-measure", lambda: measure(compile_scene(load_scene("creep-1d"))))
+    return cached("creep-measure", lambda: measure(load_scene("creep-1d")))
 
 
 def pulse_integral(dt, F=CREEP_F, end=CREEP_END):
@@ -225,10 +230,10 @@ def pulse_integral(dt, F=CREEP_F, end=CREEP_END):
 
 
 def test_dt_at_0p9_of_the_measured_limit_runs_stably():
-    sys_ = compile_scene(load_scene("creep-1d"))
+    system = load_scene("creep-1d")
     m = creep_measured()
     dt = 0.9 * m["dt_meas"]
-    s = dataclasses.replace(sys_, dt=dt, n_steps=int(round(1.0 / dt)), every=1)
+    s = dataclasses.replace(system, dt=dt, n_steps=int(round(1.0 / dt)), every=1)
     run = simulate(s)
     assert np.isfinite(run.x).all()
     L = 0.5 * CREEP_L0
@@ -242,11 +247,11 @@ def test_dt_at_0p9_of_the_measured_limit_runs_stably():
 
 
 def test_dt_at_1p1_of_the_measured_limit_is_stopped_by_the_watchdog():
-    sys_ = compile_scene(load_scene("creep-1d"))
+    system = load_scene("creep-1d")
     m = creep_measured()
     assert m["hi"] < 1.1 * m["dt_meas"]                         # 1.1 x is past the bracket of the measurement
     dt = 1.1 * m["dt_meas"]
-    s = dataclasses.replace(sys_, dt=dt, n_steps=int(round(1.0 / dt)), every=1)
+    s = dataclasses.replace(system, dt=dt, n_steps=int(round(1.0 / dt)), every=1)
     with pytest.raises(SimulationDiverged) as exc:
         with np.errstate(over="ignore", invalid="ignore"):
             simulate(s)
@@ -255,7 +260,7 @@ def test_dt_at_1p1_of_the_measured_limit_is_stopped_by_the_watchdog():
     # with_dt gives the same verdict
     with pytest.raises(SimulationDiverged, match="diverged"):
         with np.errstate(over="ignore", invalid="ignore"):
-            simulate(with_dt(sys_, dt))
+            simulate(with_dt(system, dt))
 
 
 # ================================================================ 4. a force that saturates the narrow preset
@@ -282,7 +287,7 @@ def test_big_force_saturates_the_narrow_preset_and_never_wraps(tmp_path):
     assert BIG_PULL * big.dt ** 2 / (1e-3 * ell) > fmt["dv"].max_value
     gold = simulate(big, every=1)
     bt = BitTrue(big, "narrow", formats=fmt)
-    run, raws, bt = simulate_fixed(big, "narrow", every=1, bittrue=bt)
+    run, raws, bt = run_fixed(big, "narrow", every=1, bittrue=bt)
     assert bt.sat.total > 0
     assert all(n > 0 for n in bt.sat.values())
     assert set(bt.sat) <= set(QUANTITIES) | set(CONSTANTS), dict(bt.sat)
@@ -315,8 +320,8 @@ def test_cli_fixed_narrow_writes_saturation_counts(tmp_path):
         x_raw = f["x_raw"]
     assert sum(counts.values()) > 0 and "dv" in counts, counts
     # the same bits as the in-process run with the same formats
-    big = compile_scene(load_scene(scene))
-    _, raws, bt = simulate_fixed(big, "narrow", bittrue=BitTrue(big, "narrow", formats=fmt))
+    big = load_scene(scene)
+    _, raws, bt = run_fixed(big, "narrow", bittrue=BitTrue(big, "narrow", formats=fmt))
     assert np.array_equal(raws["x_raw"], x_raw)
     assert counts == dict(bt.sat)
 
@@ -346,7 +351,7 @@ def test_short_element_creeps_like_the_others_under_a_steady_pull(tmp_path):
     i1, i2 = np.searchsorted(run.t, [0.2, 0.45])
     rate = (l[i2] - l[i1]) / (run.t[i2] - run.t[i1])
     assert np.all(np.abs(rate / (CREEP_F / CREEP_C2) - 1) <= 0.01), rate
-    fixed, _, bt = simulate_fixed(s, "wide")
+    fixed, _, bt = run_fixed(s, "wide")
     err = np.abs(fixed.x - run.x).max() / 0.02001
     assert err <= 1e-4, err
 
@@ -355,7 +360,7 @@ def test_short_element_in_the_narrow_preset_is_stopped_or_finite(tmp_path):
     """1 / l of the short element is far outside the narrow inv_l range: never silently non-finite."""
     s = variant(tmp_path, "short-element-chain", {"end = 0.2": "end = 10.0"}, "short-steady")
     try:
-        fixed, _, _ = simulate_fixed(s, "narrow")
+        fixed, _, _ = run_fixed(s, "narrow")
     except SimulationDiverged as exc:
         assert "runaway saturations" in str(exc) and "inv_l" in str(exc), str(exc)
     else:
@@ -437,7 +442,7 @@ start = {RAMP_START + k * RAMP_TIME / RAMP_STEPS!r}
 """ for k in range(RAMP_STEPS))
     p = tmp_path / "stick-slip-ramp.toml"
     p.write_text(scene_file("stick-slip-2d").read_text() + loads)
-    return compile_scene(load_scene(p)), muN
+    return load_scene(p), muN
 
 
 def pull_at(t, muN):
@@ -450,7 +455,7 @@ def stick_slip_runs(tmp_path):
     def make():
         s, muN = stick_slip_scene(tmp_path)
         gold = simulate(s)
-        fixed, _, bt = simulate_fixed(s, "wide")
+        fixed, _, bt = run_fixed(s, "wide")
         return s, muN, gold, fixed, bt
     return cached("stick-slip", make)
 
@@ -497,8 +502,8 @@ MILLION = 1_000_000
 
 
 def test_million_steps_keep_the_permanent_set():
-    sys_ = compile_scene(load_scene("creep-1d"))
-    s = dataclasses.replace(sys_, n_steps=MILLION, every=MILLION // 100)
+    system = load_scene("creep-1d")
+    s = dataclasses.replace(system, n_steps=MILLION, every=MILLION // 100)
     run = simulate(s)
     assert np.isfinite(run.x).all() and np.isfinite(run.v).all() and np.isfinite(run.a).all()
     assert run.t[-1] == pytest.approx(MILLION * s.dt)

@@ -7,27 +7,28 @@ import numpy as np
 import pytest
 
 from golden.elements import ElementParams, element_forces
-from golden.model import SimulationDiverged, simulate
-from golden.scene import compile_scene, load_scene
+from golden.errors import SimulationDiverged
+from golden.model import simulate
+from golden.scene import load_scene
 from measures import quarter_sinks
 
 
 def scene_from(tmp_path, text: str, name="scene"):
     p = tmp_path / f"{name}.toml"
     p.write_text(text)
-    return compile_scene(load_scene(p))
+    return load_scene(p)
 
 
 # ---------------------------------------------------------------- closed forms
 
 @pytest.fixture(scope="module")
 def creep():
-    sys = compile_scene(load_scene("creep-1d"))
-    return sys, simulate(sys)
+    system = load_scene("creep-1d")
+    return system, simulate(system)
 
 
 def test_creep_displacement_at_end_of_load(creep):
-    sys, run = creep
+    system, run = creep
     F, k1, c1, c2, t = 0.05, 50.0, 0.5, 5.0, 0.2
     expected = (F / k1) * (1 - math.exp(-t * k1 / c1)) + F * t / c2
     got = np.interp(t, run.t, run.x[:, 1, 0]) - 0.01
@@ -35,7 +36,7 @@ def test_creep_displacement_at_end_of_load(creep):
 
 
 def test_creep_permanent_set(creep):
-    sys, run = creep
+    system, run = creep
     expected = 0.05 * 0.2 / 5.0          # integral of F dt over c2
     got = run.x[-1, 1, 0] - 0.01
     assert abs(got - expected) <= 0.005 * expected, (got, expected)
@@ -65,7 +66,7 @@ def test_constant_stretch_rate_force_law():
 
 def test_hanging_mass_sinks_at_mg_over_c2(tmp_path):
     m, c2, g = 0.01, 5.0, 9.81
-    sys = scene_from(tmp_path, f"""
+    system = scene_from(tmp_path, f"""
 dim = 2
 [integrator]
 dt = 1e-4
@@ -78,7 +79,7 @@ material = {{ k1 = 50.0, c1 = 0.5, c2 = {c2}, a0 = 0.5, a_min = 0.0, a_max = 1.0
 masses = [{m}, {m}]
 pinned = [0]
 """)
-    run = simulate(sys, every=100)
+    run = simulate(system, every=100)
     late = run.t >= 0.8
     speed = -run.v[late, 1, 1]
     assert np.all(np.abs(speed - m * g / c2) <= 0.01 * m * g / c2), (speed.min(), speed.max(), m * g / c2)
@@ -177,29 +178,29 @@ velocity = [-0.2, 0.0]
 
 @pytest.mark.parametrize("with_collision", [False, True], ids=["free", "colliding"])
 def test_momentum_conserved_without_external_force(tmp_path, with_collision):
-    sys = _free_objects_scene(tmp_path, with_collision)
+    system = _free_objects_scene(tmp_path, with_collision)
     rng = np.random.default_rng(3)
-    sys.v0 = sys.v0 + rng.normal(0, 0.05, sys.v0.shape)      # random internal motion
-    sys.x0 = sys.x0 + rng.normal(0, 5e-4, sys.x0.shape)      # pre-stressed elements
-    run = simulate(sys, every=100)
-    p = (run.v * sys.mass[None, :, None]).sum(1)
-    scale = (np.abs(run.v[0]) * sys.mass[:, None]).sum()
+    system.v0 = system.v0 + rng.normal(0, 0.05, system.v0.shape)      # random internal motion
+    system.x0 = system.x0 + rng.normal(0, 5e-4, system.x0.shape)      # pre-stressed elements
+    run = simulate(system, every=100)
+    p = (run.v * system.mass[None, :, None]).sum(1)
+    scale = (np.abs(run.v[0]) * system.mass[:, None]).sum()
     assert np.max(np.abs(p - p[0])) <= 1e-12 * scale, np.max(np.abs(p - p[0])) / scale
     if with_collision:   # the objects did touch: otherwise the test would not test contact forces
-        gap = run.x[:, sys.node_object == 1, 0].min(1) - run.x[:, sys.node_object == 0, 0].max(1)
-        assert gap.min() < sys.collision.threshold
+        gap = run.x[:, system.node_object == 1, 0].min(1) - run.x[:, system.node_object == 0, 0].max(1)
+        assert gap.min() < system.collision.threshold
 
 
 @pytest.mark.parametrize("scene", ["press-2d-viscoelastic", "press-2d-rheological"])
 def test_symmetric_press_stays_mirror_symmetric(scene):
-    sys = compile_scene(load_scene(scene))
-    run = simulate(sys, steps=6000, every=500)
-    width = sys.x0[:, 0].max()
-    mirror = np.lexsort(((width - sys.x0[:, 0]).round(12), sys.x0[:, 1].round(12)))
-    order = np.lexsort((sys.x0[:, 0].round(12), sys.x0[:, 1].round(12)))
-    partner = np.empty(sys.n_nodes, np.int64)
+    system = load_scene(scene)
+    run = simulate(system, steps=6000, every=500)
+    width = system.x0[:, 0].max()
+    mirror = np.lexsort(((width - system.x0[:, 0]).round(12), system.x0[:, 1].round(12)))
+    order = np.lexsort((system.x0[:, 0].round(12), system.x0[:, 1].round(12)))
+    partner = np.empty(system.n_nodes, np.int64)
     partner[order] = mirror
-    assert np.allclose(sys.x0[partner, 0], width - sys.x0[:, 0]) and np.allclose(sys.x0[partner, 1], sys.x0[:, 1])
+    assert np.allclose(system.x0[partner, 0], width - system.x0[:, 0]) and np.allclose(system.x0[partner, 1], system.x0[:, 1])
     x = run.x
     err_x = np.abs(x[:, partner, 0] - (width - x[:, :, 0])).max()
     err_y = np.abs(x[:, partner, 1] - x[:, :, 1]).max()
@@ -209,7 +210,7 @@ def test_symmetric_press_stays_mirror_symmetric(scene):
 
 
 def test_divergence_is_detected(tmp_path):
-    sys = scene_from(tmp_path, """
+    system = scene_from(tmp_path, """
 dim = 2
 [integrator]
 dt = 0.05
@@ -225,7 +226,7 @@ force = [0.1, 0.0]
 """)
     with pytest.raises(SimulationDiverged, match="diverged at step"):
         with np.errstate(all="ignore"):
-            simulate(sys)
+            simulate(system)
 
 
 # ---------------------------------------------------------------- topology preservation
@@ -237,7 +238,7 @@ K = 1e3
 C = 0.5
 eps = 0.002
 """ if topology else ""
-    sys = scene_from(tmp_path, f"""
+    system = scene_from(tmp_path, f"""
 dim = 2
 [integrator]
 dt = 1e-5
@@ -251,7 +252,7 @@ pinned = [0, 1]
 nodes = [2]
 force = [0.0, -1.0]
 """, name=f"crush{topology}")
-    run = simulate(sys, every=100)
+    run = simulate(system, every=100)
     return run.x[:, 2, 1]      # height of the apex above the base edge
 
 
@@ -263,11 +264,11 @@ def test_topology_preservation_prevents_inversion(tmp_path):
 # ---------------------------------------------------------------- behaviours of the seed's figures
 
 def _recovery(name):
-    sys = compile_scene(load_scene(name))
-    run = simulate(sys)
-    top = sys.loads[0].nodes
-    lo, hi = sys.x0[top, 0].min(), sys.x0[top, 0].max()
-    bottom = np.flatnonzero((sys.x0[:, 1] == sys.x0[:, 1].min()) & (sys.x0[:, 0] >= lo) & (sys.x0[:, 0] <= hi))
+    system = load_scene(name)
+    run = simulate(system)
+    top = system.loads[0].nodes
+    lo, hi = system.x0[top, 0].min(), system.x0[top, 0].max()
+    bottom = np.flatnonzero((system.x0[:, 1] == system.x0[:, 1].min()) & (system.x0[:, 0] >= lo) & (system.x0[:, 0] <= hi))
     thickness = run.x[:, top, 1].mean(1) - run.x[:, bottom, 1].mean(1)
     disp = thickness[0] - thickness
     return 1 - disp[-1] / disp.max(), disp.max() / thickness[0]
@@ -283,8 +284,8 @@ def test_press_recovery(name, lo, hi):
 
 
 def _sink_rates(name):
-    sys = compile_scene(load_scene(name))
-    return quarter_sinks(sys, simulate(sys))
+    system = load_scene(name)
+    return quarter_sinks(system, simulate(system))
 
 
 def test_linear_damper_keeps_sinking_under_gravity():
@@ -299,11 +300,12 @@ def test_nonlinear_damper_stops_sinking_under_gravity():
 
 def test_state_copy_is_independent():
     """State.copy shares no buffer with its original (a stepped original must leave the copy alone)."""
-    from golden.model import Golden, State
-    from conftest import system
-    sys_ = system("gravity-2d-linear")
-    st = State.initial(sys_)
+    from golden.model import Golden
+    from golden.system import State
+    from conftest import scene_system
+    system = scene_system("gravity-2d-linear")
+    st = State.initial(system)
     cp = st.copy()
-    Golden(sys_).step(st)
+    Golden(system).step(st)
     assert not np.shares_memory(cp.x, st.x) and not np.shares_memory(cp.v, st.v)
-    assert np.array_equal(cp.x, sys_.x0) and not np.array_equal(st.v, cp.v)
+    assert np.array_equal(cp.x, system.x0) and not np.array_equal(st.v, cp.v)

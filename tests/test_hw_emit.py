@@ -31,6 +31,7 @@ def _units(man):
     return {u["unit"] for u in man["units_present"]}, {u["unit"] for u in man["units_left_out"]}
 
 
+@pytest.mark.hdl
 def test_manifest_lists_units_formats_memories_and_cycles(emitted):
     d, man = emitted["press-2d-rheological"]
     present, absent = _units(man)
@@ -45,6 +46,7 @@ def test_manifest_lists_units_formats_memories_and_cycles(emitted):
     assert (d / man["verilog"]).stat().st_size > 10_000
 
 
+@pytest.mark.hdl
 def test_specialisation_leaves_out_what_a_scene_does_not_need(emitted):
     _, rheo = emitted["press-2d-rheological"]
     _, visco = emitted["press-2d-viscoelastic"]
@@ -71,6 +73,7 @@ def _verilator():
         return found
 
 
+@pytest.mark.hdl
 @pytest.mark.parametrize("name", ["press-2d-rheological", "press-2d-viscoelastic", "gravity-2d-linear"])
 def test_verilog_passes_verilator_lint(emitted, name):
     d, man = emitted[name]
@@ -80,6 +83,7 @@ def test_verilog_passes_verilator_lint(emitted, name):
     assert r.returncode == 0, r.stderr[-3000:]
 
 
+@pytest.mark.hdl
 def test_lanes_are_parameters(tmp_path):
     r = _rheo("verilog", "gravity-2d-linear", "--out", str(tmp_path), "--lanes", "2", "--node-lanes", "3")
     assert r.returncode == 0, r.stderr
@@ -88,6 +92,7 @@ def test_lanes_are_parameters(tmp_path):
     assert sum(m["name"].startswith("acc_el1") for m in man["memories"]) > 0
 
 
+@pytest.mark.hdl
 def test_full_featured_3d_build_has_every_unit_even_with_friction_that_never_slides():
     """The full-feature yardstick of a 3D scene at rest: its floor friction never slides in the range
     run, yet its 1/|k_f v_t| unit must get a format and the core must elaborate (it once raised KeyError)."""
@@ -95,7 +100,7 @@ def test_full_featured_3d_build_has_every_unit_even_with_friction_that_never_sli
     from hw import emit
     from hw.bittrue import BitTrue
     from hw.core import CoreConfig, schedule
-    from sim.cli import _load_system
+    from sim.cli.common import load_system as _load_system
     base = dataclasses.replace(_load_system("gravity-3d-linear"), n_steps=20)
     bt = BitTrue(emit.full_featured(base), "narrow")
     assert {"finv", "cinv2", "tinv2", "phi", "psi"} <= set(bt.ar.units)

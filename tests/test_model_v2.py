@@ -16,9 +16,11 @@ import math
 import numpy as np
 import pytest
 
-from golden.model import Golden, State, simulate
-from golden.scene import compile_scene, load_scene
-from hw.bittrue import BitTrue, simulate_fixed
+from golden.model import Golden, simulate
+from golden.system import State
+from golden.scene import load_scene
+from hw.bittrue import BitTrue
+from helpers import run_fixed
 from hw.formats import FormatError
 from test_cli import ok, one_line_error, rheo
 
@@ -65,7 +67,7 @@ pinned = [0]
 nodes = [1]
 force = [{force!r}, 0.0]
 {extra}""")
-    return p, compile_scene(load_scene(p))
+    return p, load_scene(p)
 
 
 def late_rate(run):
@@ -78,11 +80,11 @@ def late_rate(run):
 @pytest.mark.parametrize("case", list(CREEP_CASES))
 def test_steady_creep_rate_is_F_over_c2_of_F(tmp_path, case):
     mat, F, duration = CREEP_CASES[case]
-    _, sys_ = element_scene(tmp_path, mat, F, duration)
+    _, system = element_scene(tmp_path, mat, F, duration)
     expected = F / c2_of(mat, F)
-    rates = {"golden": late_rate(simulate(sys_))}
+    rates = {"golden": late_rate(simulate(system))}
     for preset in ("wide", "medium"):
-        run, _, bt = simulate_fixed(sys_, preset)
+        run, _, bt = run_fixed(system, preset)
         assert bt.sat.total == 0
         rates[preset] = late_rate(run)
     for model, rate in rates.items():
@@ -92,11 +94,11 @@ def test_steady_creep_rate_is_F_over_c2_of_F(tmp_path, case):
 @pytest.mark.parametrize("case", list(CREEP_CASES))
 def test_tension_does_not_oscillate_once_steady(tmp_path, case):
     mat, F, duration = CREEP_CASES[case]
-    _, sys_ = element_scene(tmp_path, mat, F, duration)
-    g, st = Golden(sys_), State.initial(sys_)
+    _, system = element_scene(tmp_path, mat, F, duration)
+    g, st = Golden(system), State.initial(system)
     T = []
-    for n in range(sys_.n_steps):
-        T.append(g.forces(st, n * sys_.dt)[1][0])
+    for n in range(system.n_steps):
+        T.append(g.forces(st, n * system.dt)[1][0])
         g.step(st)
     late = np.array(T[-len(T) // 5:])                  # the last fifth: the transient has settled
     assert np.max(np.abs(np.diff(late))) < 1e-6 * F    # v1 alternated by half the force every step
@@ -107,8 +109,8 @@ def test_unloaded_element_on_a_min_keeps_its_damper_length(tmp_path):
     """MODEL.md 6, stops: pushed until its Voigt part sits on a_min, then released: the damper's length
     (1 - a) l holds once the element is at rest (v1 dropped the damper out of T on a_min)."""
     mat = dict(RHEOLOGICAL, a_min=0.4)
-    _, sys_ = element_scene(tmp_path, mat, -0.02, 0.4, extra="start = 0.0\nend = 0.1\n")
-    run = simulate(sys_)
+    _, system = element_scene(tmp_path, mat, -0.02, 0.4, extra="start = 0.0\nend = 0.1\n")
+    run = simulate(system)
     a, x = run.a[:, 0], run.x[:, 1, 0]
     on_stop = np.flatnonzero(a <= mat["a_min"] + 1e-12)
     assert on_stop.size and run.t[on_stop[0]] < 0.1              # a reached its stop during the push
@@ -137,11 +139,11 @@ material = { preset = "rheological", density = 1000.0 }
 velocity = [0.1, -0.2]
 pinned = { box = [[-0.001, -0.001], [0.011, 0.001]] }
 """)
-    sys_ = compile_scene(load_scene(p))
-    pinned = sys_.pinned
+    system = load_scene(p)
+    pinned = system.pinned
     assert pinned.any() and (~pinned).any()
-    assert np.all(sys_.v0[pinned] == 0.0) and np.all(sys_.v0[~pinned] != 0.0)
-    for run in (simulate(sys_), simulate_fixed(sys_, "wide")[0]):
+    assert np.all(system.v0[pinned] == 0.0) and np.all(system.v0[~pinned] != 0.0)
+    for run in (simulate(system), run_fixed(system, "wide")[0]):
         assert np.all(run.v[:, pinned] == 0.0)
         assert np.all(run.x[:, pinned] == run.x[0, pinned])
 
@@ -153,10 +155,10 @@ NARROW_CREEP = dict(k1=80.0, c1=0.3, c2=3.0, a0=0.5, a_min=0.0, a_max=1.0)
 
 def test_narrow_creep_is_reported_as_stagnating(tmp_path):
     """The issue's case: F = 0.02 N, m = 1e-4 kg, dt = 1e-5 s, narrow: one step's displacement is ~0.14 x LSB."""
-    p, sys_ = element_scene(tmp_path, NARROW_CREEP, 0.02, 0.05, dt=1e-5, mass=1e-4, length=0.01)
-    found = {f["quantity"]: f for f in BitTrue(sys_, "narrow").formats.stagnation()}
+    p, system = element_scene(tmp_path, NARROW_CREEP, 0.02, 0.05, dt=1e-5, mass=1e-4, length=0.01)
+    found = {f["quantity"]: f for f in BitTrue(system, "narrow").formats.stagnation()}
     assert "x" in found and found["x"]["lsbs"] < 0.5, found
-    assert not BitTrue(sys_, "wide").formats.stagnation()
+    assert not BitTrue(system, "wide").formats.stagnation()
     out = tmp_path / "run.npz"
     proc = ok(rheo("simulate", p, "--backend", "fixed", "--preset", "narrow", "--out", out))
     warnings = [ln for ln in proc.stderr.splitlines() if ln.startswith("warning:")]
@@ -167,10 +169,10 @@ def test_narrow_creep_is_reported_as_stagnating(tmp_path):
 
 
 def test_formats_that_cannot_hold_the_initial_state_are_refused(tmp_path):
-    p, sys_ = element_scene(tmp_path, NARROW_CREEP, 0.02, 0.01, dt=1e-5, mass=1e-4, length=0.01)
-    sys_.formats = {"x": "SQ(40, -10)"}                   # LSB 1024 length units: every node rounds to 0
+    p, system = element_scene(tmp_path, NARROW_CREEP, 0.02, 0.01, dt=1e-5, mass=1e-4, length=0.01)
+    system.formats = {"x": "SQ(40, -10)"}                   # LSB 1024 length units: every node rounds to 0
     with pytest.raises(FormatError, match="x rounds to zero"):
-        BitTrue(sys_, "wide")
+        BitTrue(system, "wide")
     text = p.read_text() + '\n[formats]\nx = "SQ(40, -10)"\n'
     p.write_text(text)
     out = tmp_path / "run.npz"

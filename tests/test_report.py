@@ -8,6 +8,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+pytestmark = pytest.mark.slow      # `make test-fast` leaves these out
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

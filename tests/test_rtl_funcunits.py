@@ -33,6 +33,8 @@ from hw.fixed import SQ, UQ, Saturations, shift_round
 from hw.funcunits import InverseTable, Rsqrt, RsqrtTable
 from hw.rtl_funcunits import InverseTableUnit, RsqrtTableUnit, RsqrtUnit
 
+pytestmark = pytest.mark.hdl      # `make test-fast` leaves these out
+
 
 # ================================================================================================ harness
 
@@ -276,9 +278,9 @@ RSQRT_TABLE_SCENES = [
 
 @pytest.mark.parametrize("ins, outs", RSQRT_TABLE_SCENES, ids=[f"{a}-{b}" for a, b in RSQRT_TABLE_SCENES])
 def test_rsqrt_table_scene_formats(ins, outs):
-    from hw.formats import PRESETS
-    S = PRESETS["narrow"].rsqrt_table_segments_log2
-    assert S == PRESETS["medium"].rsqrt_table_segments_log2 == 10
+    from hw.formats import FORMAT_PRESETS
+    S = FORMAT_PRESETS["narrow"].rsqrt_table_segments_log2
+    assert S == FORMAT_PRESETS["medium"].rsqrt_table_segments_log2 == 10
     model = RsqrtTable(ins, outs, segments_log2=S)
     x = _rsqrt_table_inputs(model, seed=ins.f)
     assert len(x) > 3000
@@ -385,7 +387,7 @@ SCENE = "press-2d-rheological"
 
 @pytest.fixture(scope="module")
 def scene_units():
-    """{preset: {name: model}} for press-2d-rheological: the function units `hw.bittrue.BitTrue(sys,
+    """{preset: {name: model}} for press-2d-rheological: the function units `hw.bittrue.BitTrue(system,
     preset)` builds (formats from a full range analysis, as `rheo simulate --backend fixed`; cached per
     session in tests/conftest.py), identical configurations (inv_l and tinv) kept once."""
     from conftest import bittrue

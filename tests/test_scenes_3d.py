@@ -14,7 +14,7 @@ import pytest
 from measures import quarter_sinks
 
 from golden.model import simulate
-from golden.scene import compile_scene, load_scene
+from golden.scene import compile_scene, read_scene
 
 PRESS = ["press-3d-viscoelastic", "press-3d-plastic", "press-3d-rheological"]
 GRAVITY = ["gravity-3d-linear", "gravity-3d-nonlinear"]
@@ -24,9 +24,9 @@ ALL = PRESS + GRAVITY + FRICTION
 
 @functools.cache
 def _run(name):
-    scene = load_scene(name)
-    sys = compile_scene(scene)
-    return scene, sys, simulate(sys)
+    scene = read_scene(name)
+    system = compile_scene(scene)
+    return scene, system, simulate(system)
 
 
 def _in_box(x, box):
@@ -43,8 +43,8 @@ FIGURE = {"press-3d-viscoelastic": "fig. 8", "press-3d-plastic": "fig. 9", "pres
 
 @pytest.mark.parametrize("name", ALL)
 def test_scene_is_3d_and_names_its_figure(name):
-    scene, sys, run = _run(name)
-    assert sys.dim == 3 and sys.x0.shape[1] == 3
+    scene, system, run = _run(name)
+    assert system.dim == 3 and system.x0.shape[1] == 3
     assert f"seed {FIGURE[name]})" in scene.description, scene.description
     assert "topology" in scene.data                      # topology preservation, as in the 2D scenes
     assert 100 <= len(run.t) <= 210, len(run.t)          # ~100-200 frames
@@ -53,8 +53,8 @@ def test_scene_is_3d_and_names_its_figure(name):
 
 @pytest.mark.parametrize("name", ALL)
 def test_no_tetrahedron_inverts(name):
-    _, sys, run = _run(name)
-    p = run.x[:, sys.cells]                                              # (F, C, 4, 3)
+    _, system, run = _run(name)
+    p = run.x[:, system.cells]                                              # (F, C, 4, 3)
     vol = np.einsum("fcj,fcj->fc", np.cross(p[:, :, 1] - p[:, :, 0], p[:, :, 2] - p[:, :, 0]),
                     p[:, :, 3] - p[:, :, 0])
     assert np.all(vol > 0), np.argwhere(vol <= 0)[:5]
@@ -64,9 +64,9 @@ def test_no_tetrahedron_inverts(name):
 
 def _recovery(name):
     """1 - final / peak of the pressed patch's downward displacement relative to the bottom under it."""
-    scene, sys, run = _run(name)
+    scene, system, run = _run(name)
     box = scene.data["loads"][0]["nodes"]["box"]
-    x0 = sys.x0
+    x0 = system.x0
     top = np.flatnonzero(_in_box(x0, box))
     lo, hi = x0[top, :2].min(0), x0[top, :2].max(0)
     bottom = np.flatnonzero((x0[:, 2] == x0[:, 2].min()) & np.all((x0[:, :2] >= lo) & (x0[:, :2] <= hi), axis=1))
@@ -88,7 +88,7 @@ def test_press_recovery(name, lo, hi):
 @pytest.mark.parametrize("name", PRESS)
 def test_pressed_box_comes_to_rest_after_release(name):
     # released well before the end, and at rest on the last frame (no lasting step-to-step oscillation)
-    scene, sys, run = _run(name)
+    scene, system, run = _run(name)
     assert scene.data["loads"][0]["end"] < 0.7 * run.t[-1]
     speed = np.linalg.norm(run.v[-1], axis=1).max()
     assert speed < 1e-3, speed
@@ -98,8 +98,8 @@ def test_pressed_box_comes_to_rest_after_release(name):
 
 def _sink(name):
     """Sink of the top face's mean height in the first and in the last quarter of the run."""
-    _, sys, run = _run(name)
-    return quarter_sinks(sys, run)
+    _, system, run = _run(name)
+    return quarter_sinks(system, run)
 
 
 def test_linear_damper_keeps_sinking_under_gravity():
@@ -127,10 +127,10 @@ def test_gravity_scenes_differ_only_in_the_damper():
 # ---------------------------------------------------------------- friction (fig. 12)
 
 def _slider(name):
-    scene, sys, run = _run(name)
+    scene, system, run = _run(name)
     names = [o["name"] for o in scene.data["objects"]]
     k = names.index("slider")
-    return scene, sys, run, np.flatnonzero(sys.node_object == k), scene.data["objects"][k]["mesh"]["size"][0]
+    return scene, system, run, np.flatnonzero(system.node_object == k), scene.data["objects"][k]["mesh"]["size"][0]
 
 
 def _slide(name):
@@ -163,7 +163,7 @@ def test_friction_holds_the_small_box_back():
 
 
 def test_small_box_slides_towards_the_pressed_side():
-    scene, sys, run, nodes, _ = _slider("friction-3d-mu0")
+    scene, system, run, nodes, _ = _slider("friction-3d-mu0")
     box = np.asarray(scene.data["loads"][0]["nodes"]["box"], float)
     c = run.x[:, nodes, :2].mean(1)
     towards = box[:, :2].mean(0) - c[0]
@@ -240,12 +240,12 @@ def test_penetration_check_finds_a_known_depth():
 
 @pytest.mark.parametrize("name", FRICTION)
 def test_no_vertex_passes_through_the_other_object(name):
-    scene, sys, run = _run(name)
+    scene, system, run = _run(name)
     h = scene.data["collision"]["threshold"]
     objs = []
     for k in range(len(scene.data["objects"])):
-        cells = sys.cells[sys.cell_object == k]
-        objs.append((np.flatnonzero(sys.node_object == k), cells, boundary_triangles(cells)))
+        cells = system.cells[system.cell_object == k]
+        objs.append((np.flatnonzero(system.node_object == k), cells, boundary_triangles(cells)))
     worst = 0.0
     for x in run.x:
         for a, b in ((0, 1), (1, 0)):          # vertices of object b inside object a
@@ -257,9 +257,9 @@ def test_no_vertex_passes_through_the_other_object(name):
 @pytest.mark.parametrize("name", FRICTION)
 def test_small_box_rests_on_the_large_one(name):
     # the contact check above is not vacuous: the boxes touch (within 2 thresholds) on the last frame
-    scene, sys, run = _run(name)
+    scene, system, run = _run(name)
     h = scene.data["collision"]["threshold"]
-    base_cells = sys.cells[sys.cell_object == 0]
+    base_cells = system.cells[system.cell_object == 0]
     base_faces = boundary_triangles(base_cells)
     _, _, _, slider, _ = _slider(name)
     x = run.x[-1]

@@ -17,15 +17,15 @@ import numpy as np
 import pytest
 
 from golden.model import simulate
-from golden.scene import compile_scene, load_scene
+from golden.scene import compile_scene, load_scene, read_scene
 
 _RUNS: dict = {}
 
 
 def _run(name):
     if name not in _RUNS:
-        sys = compile_scene(load_scene(name))
-        _RUNS[name] = (sys, simulate(sys))
+        system = load_scene(name)
+        _RUNS[name] = (system, simulate(system))
     return _RUNS[name]
 
 
@@ -48,17 +48,17 @@ def _segment_distance(p, a, b):
 class _Surface:
     """Boundary edges and surface vertices of every object of a 2D system."""
 
-    def __init__(self, sys):
-        self.cells = sys.cells
-        self.cell_object = sys.cell_object
-        self.edges = {o: _boundary_edges(sys.cells[sys.cell_object == o])
-                      for o in np.unique(sys.cell_object)}
+    def __init__(self, system):
+        self.cells = system.cells
+        self.cell_object = system.cell_object
+        self.edges = {o: _boundary_edges(system.cells[system.cell_object == o])
+                      for o in np.unique(system.cell_object)}
         self.vertices = np.unique(np.concatenate([b.ravel() for b in self.edges.values()]))
         self.all_edges = np.concatenate(list(self.edges.values()))
         # mesh neighbours (joined by an element): a boundary edge touching one is not a contact partner
-        n = len(sys.x0)
+        n = len(system.x0)
         adj = np.zeros((n, n), bool)
-        adj[sys.edges[:, 0], sys.edges[:, 1]] = adj[sys.edges[:, 1], sys.edges[:, 0]] = True
+        adj[system.edges[:, 0], system.edges[:, 1]] = adj[system.edges[:, 1], system.edges[:, 0]] = True
         adj[np.arange(n), np.arange(n)] = True
         self.adjacent = adj
 
@@ -121,44 +121,44 @@ COLLISION_SCENES = ["rigid-on-rheo-2d", "friction-2d-mu0", "friction-2d-mu03", "
 
 @pytest.mark.parametrize("name", COLLISION_SCENES)
 def test_no_vertex_passes_through_an_edge(name):
-    sys, run = _run(name)
-    assert sys.collision is not None
-    h = sys.collision.threshold
-    surf = _Surface(sys)
+    system, run = _run(name)
+    assert system.collision is not None
+    h = system.collision.threshold
+    surf = _Surface(system)
     depth = [surf.penetration(x) for x in run.x]
     f = int(np.argmax([d for d, _ in depth]))
     assert depth[f][0] <= h, f"{name}: node {depth[f][1]} {depth[f][0] * 1e3:.3f} mm deep at t = {run.t[f]:.3f} s"
     # the contacts really happened (the penalty acts below h): otherwise this test would test nothing
     gap = {}
     for x in run.x[::2]:
-        for k, v in surf.gaps(x, sys.node_object).items():
+        for k, v in surf.gaps(x, system.node_object).items():
             gap[k] = min(gap.get(k, np.inf), v)
     if name == "fold-2d":
         touching = [gap[(0, 0)]]                                  # the arms meet
     else:
-        touching = [min(gap[(o, q)] for q in range(len(sys.object_names)) if q != o)
-                    for o in range(len(sys.object_names))]       # every object touches another
+        touching = [min(gap[(o, q)] for q in range(len(system.object_names)) if q != o)
+                    for o in range(len(system.object_names))]       # every object touches another
     assert max(touching) < 1.05 * h, touching                      # 5 % slack for grazing contacts
 
 
 def test_penetration_is_detected_without_collisions():
     """The same falling blocks with collisions switched off do pass through each other."""
-    scene = load_scene("multi-2d")
+    scene = read_scene("multi-2d")
     scene.data["collision"]["enabled"] = False
-    sys = compile_scene(scene)
-    run = simulate(sys, steps=3000, every=100)
-    surf = _Surface(sys)
+    system = compile_scene(scene)
+    run = simulate(system, steps=3000, every=100)
+    surf = _Surface(system)
     assert max(surf.penetration(x)[0] for x in run.x) > 5e-3
 
 
 # ---------------------------------------------------------------- fig. 11: rigid block on a soft one
 
 def test_rigid_block_sinks_into_the_soft_block_and_stays_on_top():
-    sys, run = _run("rigid-on-rheo-2d")
-    soft = sys.node_object == sys.object_names.index("soft")
-    rigid = sys.node_object == sys.object_names.index("rigid")
-    height = np.ptp(sys.x0[soft, 1])
-    top0 = sys.x0[soft, 1].max()
+    system, run = _run("rigid-on-rheo-2d")
+    soft = system.node_object == system.object_names.index("soft")
+    rigid = system.node_object == system.object_names.index("rigid")
+    height = np.ptp(system.x0[soft, 1])
+    top0 = system.x0[soft, 1].max()
     low = run.x[-1, rigid, 1].min()
     assert low > run.x[-1, soft, 1].min() + 0.5 * height, low      # not pushed through
     assert low < top0 - 0.1 * height, low                          # but sunk in by a visible amount
@@ -166,13 +166,13 @@ def test_rigid_block_sinks_into_the_soft_block_and_stays_on_top():
     assert run.x[-1, soft, 0].min() < cx < run.x[-1, soft, 0].max()
     # above the soft nodes it covers: it rests on the soft block
     under = soft & (run.x[-1, :, 0] > run.x[-1, rigid, 0].min()) & (run.x[-1, :, 0] < run.x[-1, rigid, 0].max())
-    assert low > run.x[-1, under, 1].max() - sys.collision.threshold
+    assert low > run.x[-1, under, 1].max() - system.collision.threshold
 
 
 def test_rigid_block_keeps_its_shape():
-    sys, run = _run("rigid-on-rheo-2d")
-    rigid = sys.object_names.index("rigid")
-    e = sys.edges[sys.node_object[sys.edges[:, 0]] == rigid]
+    system, run = _run("rigid-on-rheo-2d")
+    rigid = system.object_names.index("rigid")
+    e = system.edges[system.node_object[system.edges[:, 0]] == rigid]
     length = np.linalg.norm(run.x[:, e[:, 1]] - run.x[:, e[:, 0]], axis=-1)
     change = np.abs(length / length[0] - 1.0).max()
     assert change < 0.01, change
@@ -181,13 +181,13 @@ def test_rigid_block_keeps_its_shape():
 # ---------------------------------------------------------------- fig. 12: friction
 
 def _slide(name):
-    sys, run = _run(name)
-    small = sys.node_object == sys.object_names.index("small")
-    return run.x[-1, small, 0].mean() - run.x[0, small, 0].mean(), np.ptp(sys.x0[small, 0])
+    system, run = _run(name)
+    small = system.node_object == system.object_names.index("small")
+    return run.x[-1, small, 0].mean() - run.x[0, small, 0].mean(), np.ptp(system.x0[small, 0])
 
 
 def test_friction_scenes_differ_only_in_mu():
-    a, b = load_scene("friction-2d-mu0").data, load_scene("friction-2d-mu03").data
+    a, b = read_scene("friction-2d-mu0").data, read_scene("friction-2d-mu03").data
     a, b = copy.deepcopy(a), copy.deepcopy(b)
     assert a["collision"].pop("mu") == 0.0 and b["collision"].pop("mu") == 0.3
     a.pop("description"), b.pop("description")
@@ -203,31 +203,31 @@ def test_friction_slows_the_slide():
 
 # ---------------------------------------------------------------- figs. 6, 7: push on the table
 
-def _load_window(sys):
-    return sys.loads[0].start, sys.loads[0].end
+def _load_window(system):
+    return system.loads[0].start, system.loads[0].end
 
 
 def test_table_push_without_gravity_lifts_off_after_release():
-    sys, run = _run("table-push-2d")
-    assert np.all(sys.gravity == 0.0)
-    start, end = _load_window(sys)
-    m = sys.mass / sys.mass.sum()
+    system, run = _run("table-push-2d")
+    assert np.all(system.gravity == 0.0)
+    start, end = _load_window(system)
+    m = system.mass / system.mass.sum()
     vy = run.v[:, :, 1] @ m                                        # centre-of-mass velocity
     before = run.t < start
     assert np.abs(vy[before]).max() < 1e-12                        # at rest until pushed
     after = np.flatnonzero(run.t >= end + 0.02)[0]
     assert vy[after] > 0.01, vy[after]                             # the table's reaction throws it up
-    assert run.x[-1, :, 1].min() > sys.floor.height + 1e-3, run.x[-1, :, 1].min()
+    assert run.x[-1, :, 1].min() > system.floor.height + 1e-3, run.x[-1, :, 1].min()
 
 
 def test_table_push_with_gravity_ends_on_the_table():
-    sys, run = _run("table-push-2d-gravity")
-    assert sys.gravity[1] < 0
-    start, end = _load_window(sys)
-    pressed = sys.loads[0].nodes
+    system, run = _run("table-push-2d-gravity")
+    assert system.gravity[1] < 0
+    start, end = _load_window(system)
+    pressed = system.loads[0].nodes
     during = (run.t >= start) & (run.t <= end)
-    dent = sys.x0[pressed, 1].mean() - run.x[during][:, pressed, 1].mean(1).min()
+    dent = system.x0[pressed, 1].mean() - run.x[during][:, pressed, 1].mean(1).min()
     assert dent > 2e-3, dent                                       # it really was pushed
-    bottom = np.flatnonzero(sys.x0[:, 1] == sys.x0[:, 1].min())
-    y = run.x[-1, bottom, 1] - sys.floor.height
+    bottom = np.flatnonzero(system.x0[:, 1] == system.x0[:, 1].min())
+    y = run.x[-1, bottom, 1] - system.floor.height
     assert np.abs(y).max() <= 5e-4, y

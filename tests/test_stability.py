@@ -2,7 +2,6 @@
 closed forms and against limits measured on real runs, the divergence watchdog and the simulate guard."""
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import math
@@ -15,19 +14,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from golden.model import Golden, SimulationDiverged, State
-from golden.scene import builtin_names, compile_scene, load_scene
-from golden.stability import (EnergyWatch, _start, measure, node_terms, node_three_element_limit, predict,
-                              reference, three_element_limit, voigt_limit)
+from golden.model import Golden
+from golden.errors import SimulationDiverged
+from golden.system import State
+from golden.scene import builtin_names, load_scene
+from golden.watchdog import EnergyWatch
+from golden.measure import _start, measure, reference
+from golden.stability import node_terms, node_three_element_limit, predict, three_element_limit, voigt_limit
 from hw.stability_fixed import bittrue_model, float_datapath_model, measure_fixed, trial_fixed
-from sim import stability_cmd
-from sim.stability_cmd import refuse_if_unstable
+from sim.cli import build_parser
+from sim.cli.stability import refuse_if_unstable
 
 
 def scene_from(tmp_path, text: str, name="scene"):
     p = tmp_path / f"{name}.toml"
     p.write_text(text)
-    return compile_scene(load_scene(p))
+    return load_scene(p)
 
 
 def one_element(tmp_path, material: str, m: float, dt: float, duration: float):
@@ -50,14 +52,14 @@ pinned = [0]
 def test_mass_on_spring_damper_matches_closed_form(tmp_path):
     """Viscoelastic preset: T = k1 (l - L) + c1 ldot; stable iff k dt^2 + 2 c dt < 4 m."""
     m, k, c = 0.01, 50.0, 0.5
-    sys = one_element(tmp_path, 'preset = "viscoelastic"', m, dt=1e-3, duration=40.0)   # ~2000 steps at the limit
+    system = one_element(tmp_path, 'preset = "viscoelastic"', m, dt=1e-3, duration=40.0)   # ~2000 steps at the limit
     closed = (-c + math.sqrt(c * c + 4 * k * m)) / k
-    p = predict(sys)
+    p = predict(system)
     assert abs(p["dt_pred"] / closed - 1) < 1e-9, (p["dt_pred"], closed)
     assert p["limiting"] == "node 1 (elements)"
     assert p["element_bound"] == math.inf                   # no a state
     assert p["margin"] == pytest.approx(closed / 1e-3)
-    r = measure(sys, rel_tol=0.02)
+    r = measure(system, rel_tol=0.02)
     assert abs(r["dt_meas"] / closed - 1) < 0.05, r
 
 
@@ -69,12 +71,12 @@ def test_mass_on_three_element_element_matches_closed_form(tmp_path):
     assert f"{closed:.4f}" == "0.1275"
     assert closed < 2 / math.sqrt(k1 / m) and closed < 2 * (c1 + c2) / k1
     assert three_element_limit(m, k1, c1, c2, 1.0) == pytest.approx(closed, rel=1e-12)
-    sys = one_element(tmp_path, f"k1 = {k1}, c1 = {c1}, c2 = {c2}, a0 = 1.0, a_min = 0.0, a_max = 1.0",
+    system = one_element(tmp_path, f"k1 = {k1}, c1 = {c1}, c2 = {c2}, a0 = 1.0, a_min = 0.0, a_max = 1.0",
                       m, dt=0.01, duration=300.0)
-    p = predict(sys)
+    p = predict(system)
     assert abs(p["dt_pred"] / closed - 1) < 1e-9, (p["dt_pred"], closed)
     assert p["element_bound"] == pytest.approx(2 * (c1 + c2) / k1)      # the a state alone: 0.2
-    r = measure(sys, rel_tol=0.02)
+    r = measure(system, rel_tol=0.02)
     assert abs(r["dt_meas"] / closed - 1) < 0.05, r
 
 
@@ -93,16 +95,16 @@ def test_nonlinear_damper_bounds_use_the_smallest_tangent_damping(tmp_path):
     node_closed = min(2 * (c1 + ct_min) * m / Bm,
                       (-Bm + math.sqrt(Bm * Bm + 4 * ct_min * k1 * (c1 + ct_min) * m)) / (ct_min * k1))
     assert 0.9999 * closed < node_closed < closed
-    sys = one_element(tmp_path, f"k1 = {k1}, c1 = {c1}, a0 = 0.5, a_min = 0.0, a_max = 1.0, "
+    system = one_element(tmp_path, f"k1 = {k1}, c1 = {c1}, a0 = 0.5, a_min = 0.0, a_max = 1.0, "
                                 f"c_min = {c_min}, c_max = {c_max}, f1 = {f1}, f2 = {f2}", m, dt=1e-4, duration=1.0)
-    assert sys.elem.nonlinear
-    p = predict(sys)
+    assert system.elem.nonlinear
+    p = predict(system)
     assert p["element_bound"] == pytest.approx(closed, rel=1e-12)
     assert p["node_bound"] == pytest.approx(node_closed, rel=1e-9)
     assert p["dt_pred"] == p["node_bound"] and p["parts"]["case"].endswith("c2 = 0.074")
     assert p["parts"]["element_c_min"] == c_min
     assert p["parts"]["element_c_t_min"] == pytest.approx(ct_min, rel=1e-12)
-    c2_grid = node_terms(sys)["c2_values"]
+    c2_grid = node_terms(system)["c2_values"]
     assert c2_grid[0] == pytest.approx(ct_min, rel=1e-12) and c2_grid[-1] == pytest.approx(c_max, rel=1e-12)
     # a constant damper keeps c2 itself
     lin = one_element(tmp_path, f"k1 = {k1}, c1 = {c1}, c2 = {c_min}, a0 = 0.5, a_min = 0.0, a_max = 1.0",
@@ -124,7 +126,7 @@ def test_a_state_chatters_above_the_tangent_bound_at_its_force(tmp_path):
     bound = 2.0 * (c1 + ct) / k1
     assert f"{ct:.4f}" == "0.0845" and f"{bound:.3g}" == "0.00369"
     assert bound >= 2.0 * (c1 + c_min / (1.0 + B * f2)) / k1        # the worst case covers it
-    sys = scene_from(tmp_path, f"""
+    system = scene_from(tmp_path, f"""
 dim = 2
 [integrator]
 dt = 1e-3
@@ -140,10 +142,10 @@ force = [{F}, 0.0]
 start = 0.0
 end = 1e3
 """)
-    assert predict(sys)["dt_pred"] <= bound
+    assert predict(system)["dt_pred"] <= bound
 
     def tail_of_T(dt):
-        s = dataclasses.replace(sys, dt=dt, n_steps=int(20.0 / dt))
+        s = dataclasses.replace(system, dt=dt, n_steps=int(20.0 / dt))
         g, st = Golden(s), State.initial(s)
         Ts = []
         while st.step < s.n_steps:
@@ -185,13 +187,13 @@ def test_three_element_node_model_matches_eigenvalues():
 
 # ---------------------------------------------------------------- built-in scenes
 
-SCENES_2D = [n for n in builtin_names() if load_scene(n).data["dim"] == 2]
+SCENES_2D = [n for n in builtin_names() if load_scene(n).dim == 2]
 MEASURED: dict[str, dict] = {}
 
 
 def measured(name: str) -> dict:
     if name not in MEASURED:
-        MEASURED[name] = measure(compile_scene(load_scene(name)))
+        MEASURED[name] = measure(load_scene(name))
     return MEASURED[name]
 
 
@@ -210,13 +212,43 @@ def test_prediction_is_half_to_all_of_the_measured_limit(name):
 
 def test_every_builtin_scene_runs_below_its_predicted_limit():
     for name in builtin_names():
-        sys = compile_scene(load_scene(name))
-        p = predict(sys)
+        system = load_scene(name)
+        p = predict(system)
         assert p["margin"] > 1, (name, p["dt_pred"], p["limiting"])
 
 
+def test_probe_contact_enters_the_prediction_like_a_floor_contact(tmp_path):
+    """A stiff probe (K = 1e5 N/m) pressing a viscoelastic block slowly (its design poke): the prediction is
+    limited by the probe, stable, and at least half the measured limit; without the probe's terms it would
+    predict a dt the scene does not survive."""
+    system = scene_from(tmp_path, """
+dim = 2
+[integrator]
+dt = 1e-4
+duration = 0.1
+[[objects]]
+mesh = { type = "rectangle", size = [0.04, 0.02], divisions = [8, 4] }
+pinned = { box = [[-0.001, -0.001], [0.041, 0.001]] }
+material = { preset = "viscoelastic", node_mass = 1e-3 }
+[probe]
+radius = 0.008
+K = 1e5
+C = 0.5
+position = [0.02, 0.0285]
+depth = 0.008
+poke_time = 0.2
+""")
+    p = predict(system)
+    assert "probe" in p["limiting"] and p["parts"]["contact"] == "probe", p["limiting"]
+    r = measure(system)
+    assert p["dt_pred"] <= r["lo"], (p["dt_pred"], r["lo"], r["hi"])
+    assert p["dt_pred"] >= 0.5 * r["hi"], (p["dt_pred"], r["lo"], r["hi"])
+    blind = predict(dataclasses.replace(system, probe=None))["dt_pred"]
+    assert blind > r["hi"], (blind, r["hi"])
+
+
 def test_prediction_is_fast_for_1e5_elements(tmp_path):
-    sys = scene_from(tmp_path, """
+    system = scene_from(tmp_path, """
 dim = 2
 [integrator]
 dt = 1e-4
@@ -235,11 +267,11 @@ mu = 0.3
 mesh = { type = "rectangle", size = [1.0, 1.0], divisions = [180, 180] }
 material = { preset = "rheological", density = 1000.0 }
 """)
-    assert sys.n_elements > 95_000
+    assert system.n_elements > 95_000
     best = math.inf
     for _ in range(2):
         t0 = time.perf_counter()
-        p = predict(sys)
+        p = predict(system)
         best = min(best, time.perf_counter() - t0)
     assert math.isfinite(p["dt_pred"]) and p["dt_pred"] > 0
     assert best < 1.0, best
@@ -247,24 +279,24 @@ material = { preset = "rheological", density = 1000.0 }
 
 # ---------------------------------------------------------------- watchdog and guard
 
-def run_watched(sys):
+def run_watched(system):
     """A golden run checked by EnergyWatch at every output frame (as golden.model.simulate will)."""
-    watch = EnergyWatch(sys)
-    g = Golden(sys)
-    st = State.initial(sys)
+    watch = EnergyWatch(system)
+    g = Golden(system)
+    st = State.initial(system)
     with np.errstate(over="ignore", invalid="ignore"):
-        while st.step < sys.n_steps:
-            for _ in range(min(sys.every, sys.n_steps - st.step)):
+        while st.step < system.n_steps:
+            for _ in range(min(system.every, system.n_steps - st.step)):
                 g.step(st)
             watch.check(st)
 
 
 def test_watchdog_raises_at_three_times_the_measured_limit():
     name = "press-2d-viscoelastic"
-    sys = compile_scene(load_scene(name))
-    run_watched(sys)                                   # its own dt: no complaint
+    system = load_scene(name)
+    run_watched(system)                                   # its own dt: no complaint
     dt = 3 * measured(name)["dt_meas"]
-    fast = dataclasses.replace(sys, dt=dt, n_steps=int(sys.n_steps * sys.dt / dt), every=10)
+    fast = dataclasses.replace(system, dt=dt, n_steps=int(system.n_steps * system.dt / dt), every=10)
     with pytest.raises(SimulationDiverged) as exc:
         run_watched(fast)
     msg = str(exc.value)
@@ -274,10 +306,10 @@ def test_watchdog_raises_at_three_times_the_measured_limit():
 
 
 def test_refuse_if_unstable():
-    sys = compile_scene(load_scene("press-2d-viscoelastic"))
-    refuse_if_unstable(sys, force=False)               # the scene's own dt is fine
-    limit = predict(sys)["dt_pred"]
-    bad = dataclasses.replace(sys, dt=2 * limit)
+    system = load_scene("press-2d-viscoelastic")
+    refuse_if_unstable(system, force=False)               # the scene's own dt is fine
+    limit = predict(system)["dt_pred"]
+    bad = dataclasses.replace(system, dt=2 * limit)
     with pytest.raises(ValueError) as exc:
         refuse_if_unstable(bad, force=False)
     msg = str(exc.value)
@@ -290,9 +322,7 @@ def test_refuse_if_unstable():
 # ---------------------------------------------------------------- command
 
 def stability(argv, capsys):
-    parser = argparse.ArgumentParser(prog="rheo")
-    stability_cmd.add_parser(parser.add_subparsers())
-    args = parser.parse_args(["stability", *argv])
+    args = build_parser().parse_args(["stability", *argv])
     assert args.func(args) == 0
     return capsys.readouterr().out
 
@@ -319,40 +349,41 @@ def test_stability_command_measures(capsys):
 
 
 def test_bittrue_trial_starts_from_the_golden_trials_perturbed_positions():
-    sys_ = compile_scene(load_scene("creep-1d"))
-    s, st = _start(sys_, 1e-3, 100, seed=0, perturb=1e-6)
+    system = load_scene("creep-1d")
+    s, st = _start(system, 1e-3, 100, seed=0, perturb=1e-6)
     stepper = bittrue_model("wide")(s, st)
     x, v, a = stepper.frame(stepper.initial_state())
-    lsb = 2.0 ** -stepper.bt.formats["x"].f * stepper.bt.units.to_length(1.0)
+    lsb = 2.0 ** -stepper.formats["x"].f * stepper.units.to_length(1.0)
     assert np.abs(x - st.x).max() <= lsb                          # the perturbed start, rounded to x
-    assert np.abs(x - sys_.x0).max() > 10 * lsb                   # ... not the scene's own x0
+    assert np.abs(x - system.x0).max() > 10 * lsb                   # ... not the scene's own x0
 
 
 def test_bittrue_trial_counts_runaway_saturations_as_unstable():
-    sys_ = compile_scene(load_scene("creep-1d"))
-    dt = predict(sys_)["dt_pred"]
-    assert trial_fixed(sys_, dt, steps=300) == (True, None, 300)
-    narrow_u = dataclasses.replace(sys_, formats={"u": "SQ(-12, 20)"})    # velocities cannot fit
+    system = load_scene("creep-1d")
+    dt = predict(system)["dt_pred"]
+    assert trial_fixed(system, dt, steps=300) == (True, None, 300)
+    narrow_u = dataclasses.replace(system, formats={"u": "SQ(-12, 20)"})    # velocities cannot fit
     ok, why, n = trial_fixed(narrow_u, dt, steps=300)
-    assert not ok and n == 25 and "runaway saturations" in why and why.startswith("bit-true (wide)")
-    ok, why, _ = trial_fixed(sys_, 4 * dt, steps=300)                    # the float physics diverges
+    assert not ok and "runaway saturations" in why and why.startswith("bit-true (wide)")
+    assert n < 25 and f"in steps 0..{n}," in why     # stopped as the count passed the limit, not at a check
+    ok, why, _ = trial_fixed(system, 4 * dt, steps=300)                    # the float physics diverges
     assert not ok and "golden trial is unstable" in why
 
 
 def test_float_datapath_run_follows_the_golden_run():
     """The `model` hook of golden.stability: the float datapath's energy history equals golden's."""
-    sys_ = compile_scene(load_scene("press-2d-viscoelastic"))
-    dt = predict(sys_)["dt_pred"]
-    g = reference(sys_, dt, 300 * dt)
-    f = reference(sys_, dt, 300 * dt, model=float_datapath_model)
+    system = load_scene("press-2d-viscoelastic")
+    dt = predict(system)["dt_pred"]
+    g = reference(system, dt, 300 * dt)
+    f = reference(system, dt, 300 * dt, model=float_datapath_model)
     assert len(g.E) == len(f.E) == 12 and g.peak > 0
     assert np.allclose(f.E, g.E, rtol=1e-8, atol=0)
 
 
 def test_bittrue_trial_without_formats_is_unstable():
-    sys_ = compile_scene(load_scene("press-2d-rheological"))
-    coarse = dataclasses.replace(sys_, formats={"drive": "SQ(17, 0)"})     # the Phi table below one LSB
-    ok, why, n = trial_fixed(coarse, predict(sys_)["dt_pred"], steps=50)
+    system = load_scene("press-2d-rheological")
+    coarse = dataclasses.replace(system, formats={"drive": "SQ(17, 0)"})     # the Phi table below one LSB
+    ok, why, n = trial_fixed(coarse, predict(system)["dt_pred"], steps=50)
     assert not ok and n == 0 and "formats cannot be derived" in why and "InverseTable" in why
 
 
@@ -364,17 +395,17 @@ def test_bittrue_trial_without_formats_is_unstable():
 @pytest.mark.parametrize("name, steps", [("creep-1d", None), ("press-2d-viscoelastic", 600)])
 def test_bittrue_wide_limit_is_the_golden_limit(name, steps):
     """Quantisation must not cost stability: the wide bit-true limit within 15 % of the golden one."""
-    sys_ = compile_scene(load_scene(name))
-    g = measure(sys_, steps=steps)
-    f = measure_fixed(sys_, "wide", steps=steps)
+    system = load_scene(name)
+    g = measure(system, steps=steps)
+    f = measure_fixed(system, "wide", steps=steps)
     assert f["preset"] == "wide" and f["lo"] <= f["dt_meas"] <= f["hi"]
     assert abs(f["dt_meas"] / g["dt_meas"] - 1) < 0.15, (g["lo"], g["hi"], f["lo"], f["hi"], f["trials"])
 
 
 def test_bittrue_narrow_limit_on_creep():
-    sys_ = compile_scene(load_scene("creep-1d"))
-    g = measure(sys_)
-    f = measure_fixed(sys_, "narrow")
+    system = load_scene("creep-1d")
+    g = measure(system)
+    f = measure_fixed(system, "narrow")
     assert 0 < f["dt_meas"] <= 1.05 * g["dt_meas"], (g["dt_meas"], f["trials"])
 
 

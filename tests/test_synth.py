@@ -15,6 +15,8 @@ from amaranth.lib.wiring import In, Out
 
 from sim.synth import DEVICES, SynthesisError, _log_utilisation, synthesize
 
+pytestmark = pytest.mark.slow      # `make test-fast` leaves these out
+
 
 class MacRam(wiring.Component):
     """Registered signed 18x18 multiply-accumulate (with clear) and a 512x18 RAM read synchronously."""

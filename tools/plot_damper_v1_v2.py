@@ -14,8 +14,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from golden.model import Golden, State
-from golden.scene import compile_scene, load_scene
+from golden.model import Golden
+from golden.system import State
+from golden.scene import load_scene
 
 F, DT, STEPS, MASS, LENGTH = 0.04, 1e-5, 3000, 1e-3, 0.01
 K1, C1, A0, C_MIN, C_MAX, F1, F2 = 50.0, 0.5, 0.5, 0.5, 500.0, 0.01, 0.05
@@ -38,8 +39,8 @@ pinned = [0]
 nodes = [1]
 force = [{F!r}, 0.0]
 """)
-        sys_ = compile_scene(load_scene(p))
-    g, st, out = Golden(sys_), State.initial(sys_), []
+        system = load_scene(p)
+    g, st, out = Golden(system), State.initial(system), []
     for n in range(STEPS):
         out.append(g.forces(st, n * DT)[1][0])
         g.step(st)

@@ -1,0 +1,126 @@
+"""What several subcommands share: argument types, the scene argument (a built-in name, a file, or the
+benchmark square `square:N`), memory checks before anything is allocated, and the bit-true model a
+hardware command builds."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+
+from golden.errors import RheoError
+
+FORMAT_PRESETS = ("narrow", "medium", "wide")       # hw/formats.py FORMAT_PRESETS (tested equal)
+
+
+class UsageError(RheoError, ValueError):
+    """A problem with the user's input; printed as one line, exit code 2."""
+
+
+def positive_float(text: str) -> float:
+    try:
+        val = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+    if not (val > 0 and np.isfinite(val)):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text}")
+    return val
+
+
+def positive_int(text: str) -> int:
+    try:
+        val = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+    if val < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {val}")
+    return val
+
+
+MAX_LANES = 64                                      # hw/core.py CoreConfig
+
+
+def lane_count(text: str) -> int:
+    val = positive_int(text)
+    if val > MAX_LANES:
+        raise argparse.ArgumentTypeError(f"expected a lane count in 1..{MAX_LANES}, got {val}")
+    return val
+
+
+def scene_argument(parser) -> None:
+    parser.add_argument("scene", help="built-in scene name, path to a scene .toml, or square:N (the benchmark "
+                                      "square of about N elements)")
+
+
+def lane_arguments(parser) -> None:
+    parser.add_argument("--lanes", type=lane_count, default=1,
+                        help=f"hardware: element (and pair) lanes P in 1..{MAX_LANES} (default 1)")
+    parser.add_argument("--node-lanes", type=lane_count, default=1,
+                        help=f"hardware: node lanes Q in 1..{MAX_LANES} (default 1)")
+
+
+def load_system(ref: str):
+    """A built-in scene by name, a scene file by path, or `square:N`: the benchmark's generated square of
+    about N elements (sim/bench.py)."""
+    from golden.scene import load_scene
+    if ref.startswith("square:"):
+        from sim import bench
+        try:
+            n = int(ref[len("square:"):])
+        except ValueError:
+            n = 0
+        if not 10 <= n <= 10_000_000:
+            raise UsageError(f"'{ref}': square:N takes a whole number of elements N in 10..10000000")
+        check_square_fits(n)
+        return bench.square_system(n)
+    from hw.formats import check_scene_formats       # [formats] belongs to the hardware: checked up front
+    system = load_scene(ref)
+    check_scene_formats(system)
+    return system
+
+
+def check_frames_fit(system, steps, every) -> None:
+    """A run records every frame in memory: refuse, before running, what this machine cannot hold."""
+    from golden.limits import over_memory
+    steps = system.n_steps if steps is None else steps
+    every = max(1, system.every if every is None else every)
+    frames = steps // every + 2
+    need = frames * (2 * system.n_nodes * system.dim + system.n_elements) * 8.0
+    if (why := over_memory(need, f"recording {frames:.3g} frames ({steps} steps, every {every})")) is not None:
+        raise UsageError(f"{why}: record fewer frames (a larger --every or fewer --steps)")
+
+
+def check_square_fits(n_elements: int, backend: str = "golden") -> None:
+    from golden.limits import mesh_nodes_fit
+    if (why := mesh_nodes_fit(n_elements / 3, f"a generated square of {n_elements} elements", backend)) is not None:
+        raise UsageError(why)
+
+
+def check_backend_fits(system, backend: str, steps=None) -> None:
+    """The scene on `backend` (the bit-true model and the simulated cores need more than golden, which the
+    scene's loading already checked): refused before anything is built when this machine cannot hold it."""
+    from golden.limits import mesh_nodes_fit
+    if (why := mesh_nodes_fit(system.n_nodes, f"scene '{system.name}'", backend)) is not None:
+        raise UsageError(why)
+
+
+def warn_stagnation(bt) -> None:
+    """A warning line on stderr for every state that stagnates under the bit-true model's formats."""
+    for msg in bt.stagnation_messages():
+        print(f"warning: {msg}", file=sys.stderr, flush=True)
+
+
+def hardware_model(args):
+    """The bit-true model (formats) of the scene a hardware command builds: the scene, or with --full its
+    full-featured variant (every optional unit)."""
+    from hw import emit
+    from hw.bittrue import BitTrue
+    system = load_system(args.scene)
+    if args.full:
+        system = emit.full_featured(system)
+    check_backend_fits(system, "amaranth")           # the core is elaborated: before the range analysis
+    print(f"{system.name}: range analysis and formats (preset {args.preset})", flush=True)
+    with np.errstate(over="ignore", invalid="ignore"):
+        bt = BitTrue(system, args.preset)
+    warn_stagnation(bt)
+    return bt

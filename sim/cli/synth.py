@@ -1,0 +1,60 @@
+"""`rheo synth SCENE --out DIR`: the scene's core through Yosys and nextpnr for an ECP5: resources, Fmax and
+the steps per second they give."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .common import FORMAT_PRESETS, hardware_model, lane_arguments, positive_float, scene_argument
+from .verilog import full_argument
+
+NAME, HELP = "synth", "synthesise the scene's core for an ECP5: resources, Fmax, steps/s"
+
+
+def add_arguments(parser) -> None:
+    scene_argument(parser)
+    parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    parser.add_argument("--device", default="ecp5-85k", help="ecp5-85k (default), ecp5-45k, ecp5-25k, ecp5-12k")
+    parser.add_argument("--clock-mhz", type=positive_float, default=100.0, help="clock constraint (default 100 MHz)")
+    parser.add_argument("--preset", default="narrow", choices=FORMAT_PRESETS,
+                        help="number-format preset (default: narrow, the one whose products fit 18x18 multipliers)")
+    full_argument(parser)
+    parser.add_argument("--no-pnr", dest="pnr", action="store_false",
+                        help="Yosys only: resources in minutes, no place and route and no Fmax")
+    lane_arguments(parser)
+
+
+def run(args) -> int:
+    from hw import emit
+    from sim.runfile import check_output_dir, output_directory
+    from sim.synth import check_device, check_tools, synthesize
+    out = check_output_dir(args.out)              # every argument before the range analysis and the tools
+    check_device(args.device)
+    check_tools(args.pnr)
+    bt = hardware_model(args)
+    with output_directory(out) as tmp:             # whole or not at all
+        r, man = _synthesize(args, bt, tmp, emit, synthesize)
+    print(f"wrote {out}/synth.json, report.md, {man['verilog']}, manifest.json")
+    timing = (f"Fmax {r['fmax_mhz']:.1f} MHz (constraint {args.clock_mhz} MHz, {'met' if r['timing_met'] else 'NOT met'})"
+              if args.pnr and r.get("fmax_mhz") is not None else
+              "no place and route (--no-pnr): no Fmax" if not args.pnr else "no Fmax: see nextpnr.log")
+    print(f"  {r['luts']} LUTs, {r['flip_flops']} FFs, {r['mult18x18']} 18x18 multipliers, {r['block_rams']} block RAMs; "
+          + timing)
+    if r.get("fmax_mhz"):
+        print(f"  {r['cycles_per_step']} cycles per step -> {r['modelled_steps_per_s']:.0f} steps/s modelled at Fmax")
+    return 0
+
+
+def _synthesize(args, bt, out: Path, emit, synthesize):
+    man = emit.write(bt, out, lanes=args.lanes, node_lanes=args.node_lanes)
+    r = synthesize(out / man["verilog"], man["top"], out, device=args.device, clock_mhz=args.clock_mhz,
+                   progress=True, place_and_route=args.pnr)
+    r.update(scene=man["scene"], preset=man["preset"], full_featured=args.full, lanes=man["lanes"],
+             elements=man["elements"], nodes=man["nodes"], units_present=[u["unit"] for u in man["units_present"]])
+    cps = man["cycles_per_step"]["value"]
+    r["cycles_per_step"] = cps
+    if r.get("fmax_mhz"):
+        r["modelled_steps_per_s"] = r["fmax_mhz"] * 1e6 / cps
+        r["modelled_element_updates_per_s"] = r["modelled_steps_per_s"] * man["elements"]
+    (out / "synth.json").write_text(json.dumps(r, indent=2, default=str))
+    return r, man
