@@ -396,10 +396,10 @@ class RsqrtTable:
         self.M = self.Y = out_shape.width + self.guard_bits
         S, M, Y = self.S, self.M, self.Y
         if M < S + 1:
-            raise ValueError(f"RsqrtTable: the internal mantissa (out_shape {out_shape} width + guard_bits = "
-                             f"{M} bits) needs at least segments_log2 + 1 = {S + 1} bits")
+            raise FormatError(f"RsqrtTable: the internal mantissa (out_shape {out_shape} width + guard_bits = "
+                              f"{M} bits) needs at least segments_log2 + 1 = {S + 1} bits")
         if in_shape.max_raw < 1:
-            raise ValueError(f"RsqrtTable in_shape {in_shape} has no positive values")
+            raise FormatError(f"RsqrtTable in_shape {in_shape} has no positive values")
         self.F = M - S
         # segment starts a = n 2^-q (n = 2^(S-1) + j, q = S + 1 - o) and ends (n + 1) 2^-q, exact in float64
         addr = np.arange(1 << S)
