@@ -256,6 +256,7 @@ def _check_constant_products(x_shape, constants, values):
         assert got[j] == [int(v) * c for v in values], f"x * {c} differs"
 
 
+@pytest.mark.hdl
 @pytest.mark.parametrize("x_shape", [signed(18), unsigned(18), signed(10), unsigned(4), signed(1), signed(36)],
                          ids=str)
 def test_constant_product_is_exact(x_shape):
@@ -292,6 +293,7 @@ def test_constant_product_threshold():
     assert "cell $mul" not in rtlil.convert(m, ports=[x])
 
 
+@pytest.mark.hdl
 @pytest.mark.parametrize("value", [1.5, -0.3125, 0.6, -1.2345678, 0.0, 1.3333333, -1.3333333], ids=str)
 def test_pipeline_product_by_a_constant_equals_the_bit_true_model(value):
     """PipeArith.mul by a constant (hw/pipeline.py): shift-add or multiplier as the constant's digits decide,
@@ -343,6 +345,7 @@ def test_pipeline_product_by_a_constant_equals_the_bit_true_model(value):
         assert not any(flags)
 
 
+@pytest.mark.hdl
 @pytest.mark.parametrize("form", ["delayed", "other_signedness"])
 def test_pipeline_product_by_a_constant_operand_reads_it_as_its_format(form):
     """PipeArith.mul takes the constant from the operand's own Const, read as the operand's format reads it:
