@@ -597,6 +597,26 @@ def test_rsqrt_table_unit_interface():
     gc.collect()
 
 
+@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
+def test_units_declare_their_memories():
+    """Every unit's `memories` (known at construction, before elaboration: what the core's schedule facts
+    and the manifest list) are the Memory submodules it elaborates, by name, depth and width."""
+    from amaranth.hdl import Shape as AShape
+    from amaranth.lib.memory import Memory
+    phi = InverseTable(UQ(8, 4), (SQ(6, 6), UQ(5, 7)), _curve("phi", (0.0, 2.0, 60.0, 20.0, 36.0)), segments_log2=4)
+    for dut in (RsqrtUnit(Rsqrt(SQ(6, 8), UQ(4, 10), seed_bits=6)),
+                RsqrtTableUnit(RsqrtTable(SQ(6, 8), UQ(4, 10), segments_log2=6)),
+                RsqrtTableUnit(RsqrtTable(SQ(10, 8), SQ(4, 14), segments_log2=10)),
+                InverseTableUnit(phi)):
+        declared = [dict(mem) for mem in dut.memories]
+        m = dut.elaborate(None)
+        built = [{"name": name, "depth": sub.depth, "width": AShape.cast(sub.shape).width}
+                 for name, (sub, _) in m._named_submodules.items() if isinstance(sub, Memory)]
+        assert declared == built and built, type(dut).__name__
+    del dut, m
+    gc.collect()          # the units elaborated by hand warn here, under this test's filter
+
+
 @pytest.mark.parametrize("kind", ["table", "newton"])
 def test_pipeline_rsqrt_picks_the_unit_of_its_model(kind):
     """PipeArith.rsqrt builds the unit that implements the bit-true model it is given (RsqrtTableUnit for
@@ -614,6 +634,8 @@ def test_pipeline_rsqrt_picks_the_unit_of_its_model(kind):
         r = ar.rsqrt(ar.input(x, "l2", 0), "inv_l")
         events = dict(ar.saturation_events())
     assert r.stage == L and r.q == "inv_l" and set(events) == {"inv_l"}
+    rom = ("table_rom", 1 << 6) if kind == "table" else ("seed_rom", len(model.seed_table))
+    assert [(mem["name"].split(".")[-1], mem["depth"]) for mem in ar.memories] == [rom]   # the lane reports it
     xs = _shuffle(np.arange(ins.min_raw, ins.max_raw + 1, 5), 7)
     got = _run_lane(m, x, valid, xs, {"v": (r.sig, L), "sat": (events["inv_l"], L + 2)})
     assert np.array_equal(got["v"], model(xs))
