@@ -112,13 +112,23 @@ def _segments(table: str, preset) -> int:
 
 
 def function_units(fmt: FormatSet, params: Params) -> dict:
-    from .funcunits import InverseTable, Rsqrt
+    """The bit-true function units of the formats: 1/sqrt per RSQRT_INPUTS quantity, the damper's tables.
+
+    A 1/sqrt is a table (RsqrtTable, one multiplier) when the preset asks for one and its internal relative
+    error bound is at most 2^-W for the output's width W (the relative size of the output's own rounding,
+    half an LSB, at the top of its range), otherwise Newton (Rsqrt: three to four multipliers a step)."""
+    from .funcunits import InverseTable, Rsqrt, RsqrtTable
     pre = fmt.preset
     units = {}
     for out, inp in RSQRT_INPUTS.items():
         if out in fmt and inp in fmt:
-            units[out] = Rsqrt(fmt[inp], fmt[out], seed_bits=pre.rsqrt_seed_bits, newton_steps=pre.rsqrt_newton,
-                               name=out)
+            unit = None
+            if pre.rsqrt_table_segments_log2:
+                unit = RsqrtTable(fmt[inp], fmt[out], segments_log2=pre.rsqrt_table_segments_log2, name=out)
+                if unit.internal_relative_error_bound() > 2.0 ** -fmt[out].width:
+                    unit = None
+            units[out] = unit or Rsqrt(fmt[inp], fmt[out], seed_bits=pre.rsqrt_seed_bits,
+                                       newton_steps=pre.rsqrt_newton, name=out)
     for name, curve in params.curves.items():
         if all(q in fmt for q in (curve.input, *curve.outputs)):
             units[name] = InverseTable(fmt[curve.input], [fmt[q] for q in curve.outputs], curve,

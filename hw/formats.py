@@ -9,7 +9,8 @@ One place defines them: each quantity named in hw/datapath.py gets a fixed-point
   of each quantity, times a headroom, sets its integer bits; the rest of the word is fraction.
   a, unit vectors and weights have fixed ranges ([0, 1] / [-1, 1]) and fixed formats.
 - Parameters (k1, c1, ...) are constants fitted to their own value with operand-width words.
-Function units are configured per preset too (rsqrt seed bits and Newton steps, inverse table size).
+Function units are configured per preset too (1/sqrt by table or by Newton, its table size or seed bits and
+Newton steps, inverse table size).
 A scene may override any quantity's format in its [formats] table, e.g. `x = "SQ(2, 30)"`.
 """
 from __future__ import annotations
@@ -99,15 +100,21 @@ class Preset:
     headroom_bits: int = 2
     rsqrt_seed_bits: int = 9
     rsqrt_newton: int = 1
+    # 1/sqrt by table and interpolation (hw/funcunits.py RsqrtTable, 2^S segments) instead of Newton
+    # (Rsqrt: seed ROM and rsqrt_newton steps): S, or 0 for Newton. The table needs one multiplier where
+    # a Newton step needs three to four; it is used where its error bound fits the output format
+    # (hw/bittrue.py function_units), Newton elsewhere
+    rsqrt_table_segments_log2: int = 0
     damper_segments_log2: int = 6
     description: str = ""
 
 
 FORMAT_PRESETS = {
-    "narrow": Preset("narrow", 18, 18, rsqrt_seed_bits=9, rsqrt_newton=1, damper_segments_log2=6,
+    "narrow": Preset("narrow", 18, 18, rsqrt_seed_bits=9, rsqrt_newton=1, rsqrt_table_segments_log2=10,
+                     damper_segments_log2=6,
                      description="DSP-native: 18-bit words everywhere (one 18x18 multiplier per product)"),
-    "medium": Preset("medium", 27, 18, rsqrt_seed_bits=9, rsqrt_newton=1, damper_segments_log2=8,
-                     description="27-bit states, 18-bit multiplier operands"),
+    "medium": Preset("medium", 27, 18, rsqrt_seed_bits=9, rsqrt_newton=1, rsqrt_table_segments_log2=10,
+                     damper_segments_log2=8, description="27-bit states, 18-bit multiplier operands"),
     "wide": Preset("wide", 32, 32, rsqrt_seed_bits=10, rsqrt_newton=2, damper_segments_log2=10,
                    description="32-bit states and operands"),
 }

@@ -1,12 +1,14 @@
-"""Function units of the datapath, bit-true: reciprocal square root and inverse tables (the damper).
+"""Function units of the datapath, bit-true: reciprocal square root (by Newton, `Rsqrt`, or by table and
+linear interpolation, `RsqrtTable`) and inverse tables (the damper).
 
-Both are vectorised NumPy int64 models that the hardware (Amaranth) reproduces bit for bit. Every
+All are vectorised NumPy int64 models that the hardware (Amaranth) reproduces bit for bit. Every
 intermediate has a stated format, every runtime rounding is `shift_round` (round to nearest, ties up),
 and every clamp of a value that does not fit its format is a saturation counted in a `Saturations`
 object under the unit's name. Constants (tables, scale factors) are computed once at construction, in
 float64 or exact integer arithmetic; they are what the hardware's ROMs and constant operands hold.
 
-Products wider than 62 bits (the Newton steps of a 32-bit-output Rsqrt) are formed exactly from two
+Products wider than 62 bits (the Newton steps of a 32-bit-output Rsqrt, the interpolation of a wide
+RsqrtTable) are formed exactly from two
 partial products of one operand split in two, or from 24-bit limbs (`_mul_shift_round`): the result is the
 exactly rounded product, as from a wide hardware multiplier.
 """
@@ -136,6 +138,46 @@ def _round_raw(value: np.ndarray, f: int) -> np.ndarray:
 
 # ------------------------------------------------------------------------------------------------ rsqrt
 
+def _rsqrt_normalise(x: np.ndarray, M: int, fi: int, k_max: int):
+    """Step 2 of Rsqrt (shared with RsqrtTable): (x > 0 mask, mantissa m_raw in UQ(0, M), exponent e) with
+    x 2^-fi = m_raw 2^-M 2^(2e) and m_raw in [2^(M-2), 2^M) (x <= 0 is treated as x = 1)."""
+    positive = x > 0
+    xs = x if positive.all() else np.where(positive, x, 1)
+    n = _bit_length(xs)
+    k = n + ((n - fi) & 1)
+    if k_max <= M:                 # no input has k > M: m = x << (M - k) < 2^M, exact
+        m = xs << (M - k)
+    else:
+        left = np.maximum(M - k, 0)
+        right = np.maximum(k - M, 0)
+        m = ((xs << left) + ((1 << right) >> 1)) >> right   # exact left shift or shift_round right
+        m = np.minimum(m, (1 << M) - 1)
+    e = (k - fi) >> 1                                        # exact: k - fi is even
+    return positive, m, e
+
+
+def _rsqrt_denormalise(positive, y, e, Y: int, out: Shape, s_max: int, sat, name: str) -> np.ndarray:
+    """Step 5 of Rsqrt (shared with RsqrtTable): raw_out = shift_round(y, Y + e - fo) for y in UQ(2, Y)
+    (y > 2^(Y-1)), a left shift when Y + e - fo < 0, saturated into `out` (counted under `name`); x <= 0
+    gives the maximum, counted. `s_max` bounds the shift Y + e - fo from above."""
+    s = e + (Y - out.f)
+    if s.size and s.min() >= 0:                # the common case: right shifts only
+        # y < 2^(Y+2): a shift beyond Y + 3 (up to 62, no int64 overflow) still gives 0, as the clamp does
+        rs = s if s_max <= 62 else np.minimum(s, Y + 3)
+        res = (y + ((1 << rs) >> 1)) >> rs
+    else:
+        rs = np.minimum(np.maximum(s, 0), Y + 3)   # y < 2^(Y+2): any right shift >= Y + 3 gives 0
+        ls = np.minimum(np.maximum(-s, 0), 62)     # y > 2^(Y-1) >= 1: shifts >= 33 overflow anyway
+        # a left-shifted y overflows iff y > max_raw >> ls; clip it to (max_raw >> ls) + 1 first, so the
+        # shift itself never overflows int64 and the saturation below still sees (and counts) it
+        yl = np.where(ls > 0, np.minimum(y, (out.max_raw >> ls) + 1), y)
+        res = ((yl << ls) + ((1 << rs) >> 1)) >> rs
+    if not positive.all():
+        res = np.where(positive, res, out.max_raw + 1)         # 1. x <= 0: saturate (counted)
+    return out.saturate(res, sat, name)
+
+
+
 class Rsqrt:
     """Reciprocal square root y = 1/sqrt(v) of a positive fixed-point input, bit-true.
 
@@ -218,20 +260,8 @@ class Rsqrt:
     def _core(self, raw):
         """Steps 2-4: (x > 0 mask, y in UQ(2, Y), e) for raw inputs."""
         x = _check_raw(raw, self.in_shape, f"Rsqrt({self.in_shape} -> {self.out_shape})")
-        M, Y, fi = self.M, self.Y, self.in_shape.f
-        positive = x > 0
-        xs = x if positive.all() else np.where(positive, x, 1)
-        # 2. normalise
-        n = _bit_length(xs)
-        k = n + ((n - fi) & 1)
-        if self.k_max <= M:            # no input has k > M: m = x << (M - k) < 2^M, exact
-            m = xs << (M - k)
-        else:
-            left = np.maximum(M - k, 0)
-            right = np.maximum(k - M, 0)
-            m = ((xs << left) + ((1 << right) >> 1)) >> right   # exact left shift or shift_round right
-            m = np.minimum(m, (1 << M) - 1)
-        e = (k - fi) >> 1                                        # exact: k - fi is even
+        M, Y = self.M, self.Y
+        positive, m, e = _rsqrt_normalise(x, M, self.in_shape.f, self.k_max)    # 2. normalise
         # 3. seed
         y = self._rom[m >> (M - self.seed_bits)]
         # 4. Newton steps (products exact, then rounded)
@@ -250,24 +280,7 @@ class Rsqrt:
 
     def __call__(self, raw: np.ndarray, sat: Saturations | None = None) -> np.ndarray:
         positive, y, e = self._core(raw)
-        Y = self.Y
-        # 5. denormalise: shift_round(y, s), s = Y + e - fo, per element; then saturate
-        out = self.out_shape
-        s = e + (Y - out.f)
-        if s.size and s.min() >= 0:                # the common case: right shifts only
-            # y < 2^(Y+2): a shift beyond Y + 3 (up to 62, no int64 overflow) still gives 0, as the clamp does
-            rs = s if self._s_max <= 62 else np.minimum(s, Y + 3)
-            res = (y + ((1 << rs) >> 1)) >> rs
-        else:
-            rs = np.minimum(np.maximum(s, 0), Y + 3)   # y < 2^(Y+2): any right shift >= Y + 3 gives 0
-            ls = np.minimum(np.maximum(-s, 0), 62)     # y > 2^(Y-1) >= 1: shifts >= 33 overflow anyway
-            # a left-shifted y overflows iff y > max_raw >> ls; clip it to (max_raw >> ls) + 1 first, so the
-            # shift itself never overflows int64 and the saturation below still sees (and counts) it
-            yl = np.where(ls > 0, np.minimum(y, (out.max_raw >> ls) + 1), y)
-            res = ((yl << ls) + ((1 << rs) >> 1)) >> rs
-        if not positive.all():
-            res = np.where(positive, res, out.max_raw + 1)         # 1. x <= 0: saturate (counted)
-        return out.saturate(res, sat, self.name)
+        return _rsqrt_denormalise(positive, y, e, self.Y, self.out_shape, self._s_max, sat, self.name)   # 5.
 
     # ---- references and bounds
     @staticmethod
@@ -307,6 +320,170 @@ class Rsqrt:
         return {"unit": "rsqrt", "name": self.name, "in": str(self.in_shape), "out": str(self.out_shape),
                 "seed_bits": self.seed_bits, "newton_steps": self.newton_steps, "guard_bits": self.guard_bits,
                 "mantissa_bits": self.M, "rom_words": len(self.seed_table), "rom_word_bits": self.Y + 2,
+                "internal_relative_error_bound": self.internal_relative_error_bound(),
+                "max_relative_error_bound": self.max_relative_error_bound()}
+
+
+class RsqrtTable:
+    """Reciprocal square root y = 1/sqrt(v) by table and linear interpolation, bit-true: one product and
+    one ROM instead of Rsqrt's Newton step (three products).
+
+    Input raw x in `in_shape` (value v = x 2^-fi), output raw in `out_shape` (fo = out_shape.f). Internal
+    mantissa width M = out_shape.width + guard_bits, iterate y with Y = M fraction bits, S = segments_log2,
+    F = M - S (M >= S + 1). All integers are non-negative in steps 2-4.
+
+    1. Non-positive input: x <= 0 gives the out_shape maximum, one saturation counted per element.
+    2. Normalise exactly as Rsqrt (its step 2): mant = x 2^-k in [1/4, 1) with k - fi even (the input
+       scaled into [1, 4) by an even shift, then divided by 4), held as m_raw in UQ(0, M) (rounded only
+       when k > M, with Rsqrt's clamp); e = (k - fi) / 2. Write m = m_raw 2^-M.
+    3. Segment. The octaves [1/4, 1/2) (o = 0) and [1/2, 1) (o = 1) have 2^(S-1) segments each, of width
+       h_o = 2^-(S+1-o) (the same width relative to m, so the same relative error in both):
+         o    = m_raw >> (M - 1)                   (m_raw's top bit)
+         j    = the S - 1 bits below m_raw's leading one (bits M-2..M-S if o = 1, M-3..M-S-1 if o = 0)
+         frac = the bits below those, as a fraction of the segment in UQ(0, F): m_raw mod 2^F if o = 1,
+                (m_raw mod 2^(F-1)) << 1 if o = 0, so that m = a + t h_o exactly, t = frac 2^-F
+       and the ROM address addr = o 2^(S-1) + j (2^S words).
+    4. Interpolate: y = c0[addr] - shift_round(frac * sl[addr], F) in UQ(2, Y), i.e. c0 - sl t with the
+       product rounded to nearest (ties up): one product of F x bits(sl) bits, formed exactly (as Rsqrt's,
+       `_mul_shift_round`) and rounded once.
+    5. Denormalise and saturate exactly as Rsqrt (its step 5): raw_out = shift_round(y, Y + e - fo).
+
+    Table (construction time). Segment j of octave o starts at a = (2^(S-1) + j) h_o; on it write
+    g(t) = 2^Y / sqrt(a + t h_o), t in [0, 1] (1/sqrt in units of 2^-Y: convex, decreasing).
+    - slope sl = round(g(0) - g(1)), an integer >= 0: the chord's drop, rounded;
+    - the line c0 - sl t minus g is concave in t: with r(t) = -sl t - g(t) its minimum r_min is at an end
+      (t = 0 or 1), its maximum r_max at t* where g'(t*) = -sl, i.e. a + t* h_o = (2 sl / (2^Y h_o))^(-2/3)
+      (clamped into [0, 1]);
+    - offset c0 = round(-(r_max + r_min) / 2), clamped into [2^Y, 2^(Y+1) - 1] (the ROM holds c0 - 2^Y in
+      Y bits; only the first segment, a = 1/4 where g(0) = 2^(Y+1), can round up to 2^(Y+1), and the clamp
+      moves it by 1 where f > 1.99): the line is centred on the curve, its error as large above as below
+      (minimax: half the chord's worst error; its mean over a segment is +1/6 of the chord's gap, a bias of
+      about E_tab / 10 where the rounding terms dominate, measured).
+    ROM word: c0 - 2^Y (Y bits) and sl (about Y + 1 - S bits): 22 + 13 = 35 bits for an 18-bit output
+    with the default guard_bits = 4 (1,024 words, two 1024 x 18 block RAMs).
+
+    Error bound (`internal_relative_error_bound`, `error_bound`, `max_relative_error_bound`), in units of
+    2^-Y on y:
+    - the line: |c0 - sl t - g(t)| <= e_j := max(|c0 + r_min|, |c0 + r_max|) <= (r_max - r_min) / 2 + 1/2
+      (c0's rounding; + 1 on the clamped word). For the exact chord slope, r_max - r_min is the chord's
+      largest gap, at most 2^Y h_o^2 max|f''| / 8 (f = 1/sqrt, f''(m) = 3/4 m^-5/2); the rounded slope
+      moves r by at most t / 2 <= 1/2. So e_j <= 2^Y h_o^2 max|f''| / 16 + 3/4;
+    - the interpolation's rounding: + 1/2;
+    - relative to 2^Y f(m) >= 2^Y f(a + h_o), with max|f''| = f''(a) on the segment:
+      h_o^2 f''(a) / (16 f(a + h_o)) = 3/64 (h_o/a)^2 (1 + h_o/a)^(1/2), h_o / a <= 2^(1-S) in both octaves
+      (a >= 2^(S-1) h_o), and f >= 1, so
+        E_tab = max_j (e_j + 1/2) 2^-Y / f(a_j + h_o)
+              <= (3/16) 2^-2S (1 + 2^(1-S))^(1/2) + (5/4) 2^-Y                     (a priori)
+      i.e. h^2/16 max|f''| relative (half of h^2/8: the centred line) plus the roundings. S = 10, Y = 22
+      (an 18-bit output): 1.79e-7 + 2.98e-7 = 4.8e-7 a priori, 3.53e-7 from the table (below 2^-21;
+      the Newton step of the narrow preset, 9 seed bits: 7.6e-6). On the clamped word the rounding terms
+      are 9/4 2^-Y / 1.99 < 5/4 2^-Y, within the same bound. `internal_relative_error_bound` takes e_j
+      from the table itself (a float64 evaluation with a little slack), never above the a-priori value.
+    - Mantissa rounding (only when an input can have k > M): as Rsqrt, eps_m = 1/sqrt(1 - 2^(1-M)) - 1.
+    - Internal bound E_int = (1 + E_tab)(1 + eps_m) - 1 on |y 2^-Y 2^-e sqrt(v) - 1|; output bounds as
+      Rsqrt: |out - 1/sqrt(v)| <= E_int / sqrt(v) + 2^-(fo+1) for every unsaturated output, and relative
+      E_int + 2^-(fo+1) sqrt(v_max) over the input range.
+    """
+
+
+    def __init__(self, in_shape: Shape, out_shape: Shape, segments_log2: int = 10, guard_bits: int = 4,
+                 name: str = "rsqrt"):
+        self.in_shape = _check_shape("RsqrtTable in_shape", in_shape)
+        self.out_shape = _check_shape("RsqrtTable out_shape", out_shape)
+        self.S = _check_int("RsqrtTable segments_log2", segments_log2, 2, 12)
+        self.guard_bits = _check_int("RsqrtTable guard_bits", guard_bits, 0, 8)
+        self.name = str(name)
+        self.M = self.Y = out_shape.width + self.guard_bits
+        S, M, Y = self.S, self.M, self.Y
+        if M < S + 1:
+            raise FormatError(f"RsqrtTable: the internal mantissa (out_shape {out_shape} width + guard_bits = "
+                              f"{M} bits) needs at least segments_log2 + 1 = {S + 1} bits")
+        if in_shape.max_raw < 1:
+            raise FormatError(f"RsqrtTable in_shape {in_shape} has no positive values")
+        self.F = M - S
+        # segment starts a = n 2^-q (n = 2^(S-1) + j, q = S + 1 - o) and ends (n + 1) 2^-q, exact in float64
+        addr = np.arange(1 << S)
+        o = addr >> (S - 1)
+        n = ((1 << (S - 1)) + (addr & ((1 << (S - 1)) - 1))).astype(np.float64)
+        h = np.ldexp(1.0, -(S + 1 - o))
+        a = n * h
+        g0, g1 = 2.0 ** Y / np.sqrt(a), 2.0 ** Y / np.sqrt(a + h)
+        sl = np.floor(g0 - g1 + 0.5)
+        # stationary point of r(t) = -sl t - g(t): (a + t h)^(-3/2) = 2 sl / (2^Y h)
+        with np.errstate(divide="ignore"):
+            ts = ((2.0 * sl / (2.0 ** Y * h)) ** (-2.0 / 3.0) - a) / h
+        ts = np.clip(np.nan_to_num(ts, nan=1.0, posinf=1.0), 0.0, 1.0)
+        r = lambda t: -sl * t - 2.0 ** Y / np.sqrt(a + t * h)
+        r_min, r_max = np.minimum(r(0.0), r(1.0)), r(ts)
+        # clamped into [2^Y, 2^(Y+1)) (the ROM holds c0 - 2^Y in Y bits): only the first segment (a = 1/4,
+        # g(0) = 2^(Y+1)) can round up to 2^(Y+1); the clamp moves it by 1, where f >= 1.99
+        c0 = np.clip(np.floor(-(r_max + r_min) / 2 + 0.5), 2.0 ** Y, 2.0 ** (Y + 1) - 1)
+        self.c0 = c0.astype(np.int64)
+        self.slope = sl.astype(np.int64)
+        # e_j, evaluated in float64 from values below 2^(Y+2) (ulp 2^(Y-51)): + 2^-10 + 2^(Y-44) units of slack
+        self.seg_error = np.maximum(np.abs(c0 + r_min), np.abs(c0 + r_max)) + 2.0 ** -10 + 2.0 ** (Y - 44)
+        self._seg_f_min = 1.0 / np.sqrt(a + h)                  # f(a + h_o), the smallest f on the segment
+        self.k_max = int(in_shape.max_raw).bit_length() + 1
+        self._s_max = Y - out_shape.f + (self.k_max - in_shape.f + 1) // 2
+        self._bound = None
+
+    # ---- the unit
+    def _core(self, raw):
+        """Steps 2-4: (x > 0 mask, y in UQ(2, Y), e) for raw inputs."""
+        x = _check_raw(raw, self.in_shape, f"RsqrtTable({self.in_shape} -> {self.out_shape})")
+        M, S, F = self.M, self.S, self.F
+        positive, m, e = _rsqrt_normalise(x, M, self.in_shape.f, self.k_max)       # 2.
+        o = m >> (M - 1)                                                            # 3.
+        hi = o.astype(bool)
+        addr = np.where(hi, m >> (M - S), (m >> (M - S - 1)) - (1 << (S - 1)))
+        frac = np.where(hi, m & ((1 << F) - 1), (m & ((1 << (F - 1)) - 1)) << 1)
+        sl_bits = int(self.slope.max()).bit_length()
+        y = self.c0[addr] - _mul_shift_round(frac, self.slope[addr], F, F + sl_bits, sl_bits)  # 4.
+        return positive, y, e
+
+    def internal(self, raw: np.ndarray) -> np.ndarray:
+        """The result before the output rounding, y 2^-Y 2^-e, as float64 (nan where x <= 0)."""
+        positive, y, e = self._core(raw)
+        val = np.ldexp(y.astype(np.float64), (-self.Y - e).astype(np.int32))
+        return np.where(positive, val, np.nan)
+
+    def __call__(self, raw: np.ndarray, sat: Saturations | None = None) -> np.ndarray:
+        positive, y, e = self._core(raw)
+        return _rsqrt_denormalise(positive, y, e, self.Y, self.out_shape, self._s_max, sat, self.name)   # 5.
+
+    # ---- references and bounds
+    reference = staticmethod(Rsqrt.reference)
+
+    def table_relative_error(self) -> float:
+        """E_tab: the largest relative error of y 2^-Y against 1/sqrt(m) over all segments (line, its
+        offset's rounding and the interpolation's rounding), from the table itself."""
+        return float(np.max((self.seg_error + 0.5) * 2.0 ** -self.Y / self._seg_f_min))
+
+    def a_priori_table_error(self) -> float:
+        """The docstring's bound on E_tab from S and Y alone: (3/16) 2^-2S (1 + 2^(1-S))^(1/2) + (5/4) 2^-Y."""
+        S = self.S
+        return 3 / 16 * 2.0 ** (-2 * S) * math.sqrt(1 + 2.0 ** (1 - S)) + 1.25 * 2.0 ** -self.Y
+
+    def internal_relative_error_bound(self) -> float:
+        """E_int: bound on the relative error of y 2^-Y 2^-e before the output rounding."""
+        if self._bound is None:
+            E = self.table_relative_error()
+            eps_m = 1 / math.sqrt(1 - 2.0 ** (1 - self.M)) - 1 if self.k_max > self.M else 0.0
+            self._bound = (1 + E) * (1 + eps_m) - 1 if eps_m else E
+        return self._bound
+
+    def error_bound(self, value) -> np.ndarray:
+        """Bound on |out - 1/sqrt(value)| (real units) for inputs whose output does not saturate."""
+        return self.internal_relative_error_bound() * self.reference(value) + 0.5 * self.out_shape.lsb
+
+    def max_relative_error_bound(self) -> float:
+        """Bound on |out sqrt(v) - 1| over every positive input whose output does not saturate."""
+        return self.internal_relative_error_bound() + 0.5 * self.out_shape.lsb * math.sqrt(self.in_shape.max_value)
+
+    def to_dict(self) -> dict:
+        return {"unit": "rsqrt_table", "name": self.name, "in": str(self.in_shape), "out": str(self.out_shape),
+                "segments_log2": self.S, "guard_bits": self.guard_bits, "mantissa_bits": self.M,
+                "rom_words": len(self.c0), "rom_word_bits": self.Y + int(self.slope.max()).bit_length(),
                 "internal_relative_error_bound": self.internal_relative_error_bound(),
                 "max_relative_error_bound": self.max_relative_error_bound()}
 

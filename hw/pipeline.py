@@ -10,7 +10,9 @@ Schedule (as soon as possible, no stalls; II = 1):
   operand, earlier operands are delayed by shift registers (shared between users);
 - multiply: 1 + `product_latency` stages (hw/rtl_fixed.py): 2 when both operands fit one 18x18
   multiplier (exact product register, then round/saturate register), 3 when one is wider (registered
-  DSP-sized partial products, their exact sum, then round/saturate); add, subtract, sum of terms, negate,
+  DSP-sized partial products, their exact sum, then round/saturate); a product by a constant built from
+  shifts and adds (`constant_product`) takes 1 + its stated latency (the same, or 3 for a constant of 5 or
+  more signed digits by an operand that fits one multiplier); add, subtract, sum of terms, negate,
   convert, select: 1 stage; comparisons and boolean logic: 0 stages (combinational, folded into the select
   that uses them); constants and per-phase values (step counter): no stage at all;
 - function units (hw/rtl_funcunits.py) stream their operand in and their result out after their latency.
@@ -29,7 +31,7 @@ from amaranth.hdl import Const, Module, Mux, Signal, Value
 
 from .arith import Arith, Gate
 from .fixed import Saturations, Shape
-from .rtl_fixed import FixedValue, as_shape, pipelined_product, tree_sum
+from .rtl_fixed import FixedValue, as_shape, constant_product, pipelined_product, tree_sum
 
 OP_LATENCY = 1
 
@@ -243,9 +245,22 @@ class PipeArith(Arith):
         return PV(Const(0, as_shape(self.shape(q))), q, None)
 
     def mul(self, a, b, q) -> PV:
+        """a * b rounded into q. A product by a constant (a Const operand: one material's k1 or c1, the
+        penalty constants, the damper's linear-piece slopes...) is built from shifts and adds when that
+        takes few adders (hw/rtl_fixed.py constant_product), otherwise, and for two variable operands, by
+        multipliers (pipelined_product); either is exact, and the stage of the result follows the latency
+        of the form built."""
         s = self._s(a, b)
         fa, fb = self.fx(a, s), self.fx(b, s)
-        p, lat = pipelined_product(self.m, fa.raw, fb.raw, self._name("prod"))
+        name = self._name("prod")
+        built = None
+        if isinstance(a.sig, Const) != isinstance(b.sig, Const):
+            (cv, fc), x = ((a, fa), fb) if isinstance(a.sig, Const) else ((b, fb), fa)
+            # the constant from the operand's own Const (fx may hand a delay register of it, or a sign
+            # reinterpretation: an Operator), its bits read as the operand's format reads them
+            c = Const(cv.sig.value, fc.raw.shape())
+            built = constant_product(self.m, x.raw, c, name)
+        p, lat = built or pipelined_product(self.m, fa.raw, fb.raw, name)
         rounded = FixedValue(p, fa.f + fb.f).round(self.shape(q))
         return self._result(rounded, q, s + lat, self._gate(a, b), "mul")
 
@@ -302,9 +317,13 @@ class PipeArith(Arith):
         return RtlGate(self, cond)
 
     def rsqrt(self, a, q) -> PV:
-        from .rtl_funcunits import RsqrtUnit
+        """1/sqrt by the unit that implements the bit-true model self.units[q]: RsqrtUnit for an Rsqrt
+        (Newton), RsqrtTableUnit for an RsqrtTable (table and interpolation)."""
+        from .funcunits import RsqrtTable
+        from .rtl_funcunits import RsqrtTableUnit, RsqrtUnit
         s = self._s(a)
-        unit = RsqrtUnit(self.units[q])
+        model = self.units[q]
+        unit = RsqrtTableUnit(model) if isinstance(model, RsqrtTable) else RsqrtUnit(model)
         self._add_unit(self._name("rsqrt_" + q), unit)
         self.m.d.comb += [unit.i.payload.eq(self.at(a, s)), unit.i.valid.eq(self.valid_at(s))]
         out = s + unit.latency

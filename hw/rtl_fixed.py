@@ -12,6 +12,9 @@ where the bit-true model (hw/fixed.py) rounds and saturates, so the two agree bi
 `pipelined_product` registers an exact product of two raw values the way an ECP5 maps it best: one
 18x18 multiplier (MULT18X18D) and a product register when both operands fit one, otherwise registered
 DSP-sized partial products and their sum one cycle later (`product_latency` gives its latency).
+`constant_product` forms a product by a constant from shifts and adds of its canonical signed digits
+instead, when that takes few adders (CSD_ADDERS_PER_MULTIPLIER per multiplier saved), with its latency
+stated (never below the multiplier's).
 """
 from __future__ import annotations
 
@@ -21,7 +24,8 @@ from amaranth.hdl import Const as _AConst
 from .fixed import SQ, UQ, Shape
 
 __all__ = ["SQ", "UQ", "Shape", "FixedValue", "Const", "as_shape", "as_float", "DSP_BITS", "LIMB_BITS",
-           "product_latency", "pipelined_product", "tree_sum"]
+           "product_latency", "pipelined_product", "tree_sum", "multipliers", "csd_digits", "shift_add_choice",
+           "constant_product", "CSD_ADDERS_PER_MULTIPLIER"]
 
 DSP_BITS = 18     # operand width of one MULT18X18D (18 x 18 bits, signed or unsigned)
 LIMB_BITS = 17    # low limbs of a split operand in a signed product: unsigned, so 18-bit signed values
@@ -256,3 +260,201 @@ def pipelined_product(m: Module, a, b, name: str) -> tuple[Value, int]:
             pp = reg(_mul(la, lb), (la * lb).shape(), f"{name}_pp{i}{j}")
             parts.append(pp.shift_left(oa + ob))
     return result(tree_sum(parts), 2)
+
+
+# ------------------------------------------------------------------------------------- constant products
+
+CSD_ADDERS_PER_MULTIPLIER = 8    # shift-add products of a constant: at most this many adders per multiplier saved
+ADDER_LEVELS_PER_CYCLE = 2
+
+
+def _odd_part(c: _AConst) -> _AConst:
+    """The constant operand `pipelined_product` multiplies by: c without its trailing zero bits."""
+    if c.value == 0:
+        return c
+    tz = (c.value & -c.value).bit_length() - 1
+    return _AConst(c.value >> tz, signed(len(c) - tz) if c.shape().signed else unsigned(len(c) - tz))
+
+
+def multipliers(a_shape, b_shape) -> int:
+    """MULT18X18D that `pipelined_product` builds for operands of these Amaranth shapes (of a constant
+    operand, its odd part's shape): one per pair of DSP-sized limbs (one for operands that fit one), none for
+    a (partial) product with an operand of at most ROW_BITS bits (rows in logic)."""
+    if product_latency(a_shape, b_shape) == 1:
+        return int(min(a_shape.width, b_shape.width) > ROW_BITS)
+    sp = a_shape.signed or b_shape.signed
+    limb = LIMB_BITS if sp else DSP_BITS
+
+    def widths(shape):
+        w = _operand_width(shape, sp)
+        if w <= DSP_BITS:
+            return [w]
+        n = -(-(w - DSP_BITS) // limb)              # limbs of `limb` bits below a top limb of <= DSP_BITS
+        return [limb] * n + [w - n * limb]
+    return sum(1 for wa in widths(a_shape) for wb in widths(b_shape) if min(wa, wb) > ROW_BITS)
+
+
+def csd_digits(c: int) -> list[tuple[int, int]]:
+    """The canonical signed digits of the integer c (its non-adjacent form): [(shift, +1 or -1)] by rising
+    shift, sum d 2^shift = c, no two digits at adjacent shifts; the fewest non-zero signed digits of any
+    representation (about a third of c's bits on average)."""
+    c, k, out = int(c), 0, []
+    while c:
+        if c & 1:
+            d = 2 - (c & 3)            # +1 when c = 1 mod 4, -1 when c = 3 mod 4: leaves c = 0 mod 4
+            out.append((k, d))
+            c -= d
+        c >>= 1
+        k += 1
+    return out
+
+
+def _shift_add(a: Value, b: Value, d: int, sub: bool) -> Value:
+    """a + b 2^d (a - b 2^d when sub), exact, with an adder only as wide as b and a's bits from d up: the
+    low d bits of the sum are a's (b 2^d has none), a = (a >> d) 2^d + (a mod 2^d)."""
+    if d == 0:
+        return a - b if sub else a + b
+    if len(a) <= d:                    # widen a (sign or zeros) so that a >> d keeps its sign
+        fill = d + 1 - len(a)
+        a = (Cat(a, a[-1].replicate(fill)).as_signed() if a.shape().signed else Cat(a, _AConst(0, fill)))
+    hi = a.shift_right(d)
+    hi = hi - b if sub else hi + b
+    v = Cat(a[:d], hi)
+    return v.as_signed() if hi.shape().signed else v
+
+
+class _ShiftAddPlan:
+    """The adder tree of x * c from c's canonical signed digits, as terms (shift, sign, value) summed
+    pairwise by rising shift, one adder per pair: a + b 2^d keeps the lower term's sign s_a (b's sign
+    s_b != s_a: a - b 2^d), except the last adder, which makes a positive result from a negative lower term
+    and a positive upper one (b 2^d - a). A result still negative at the end is negated (one more adder).
+    With `emit` False only the adders and adder levels are counted (the same decisions, no hardware)."""
+
+    def __init__(self, c: int):
+        self.digits = csd_digits(c)
+
+    @staticmethod
+    def _level(terms, last, emit):
+        out = []
+        for i in range(0, len(terms) - 1, 2):
+            (ka, sa, va), (kb, sb, vb) = terms[i], terms[i + 1]
+            d = kb - ka
+            if last and len(terms) == 2 and sa < 0 < sb:
+                out.append((ka, 1, emit and (vb.shift_left(d) - va)))
+            else:
+                out.append((ka, sa, emit and _shift_add(va, vb, d, sub=sa != sb)))
+        if len(terms) % 2:
+            out.append(terms[-1])
+        return out
+
+    def reduce(self, terms, last, emit):
+        """Sum the terms into one (levels of pairwise adders); returns (term, levels)."""
+        levels = 0
+        while len(terms) > 1:
+            terms = self._level(terms, last, emit)
+            levels += 1
+        return terms[0], levels
+
+    def groups(self, cycles: int) -> list[int]:
+        """Group sizes summed in the first of two cycles (partial sums registered; one group: its sum holds
+        the last adder), or [n] for one cycle."""
+        n = len(self.digits)
+        if cycles == 1 or n <= 1:
+            return [n]
+        g = 2 if n <= 4 else 4
+        return [min(g, n - i) for i in range(0, n, g)]
+
+    def cost(self, cycles: int) -> tuple[int, list[int]]:
+        """(adders, adder levels per cycle) of the tree built over `cycles` cycles."""
+        terms = [(k, d, None) for k, d in self.digits]
+        if not terms:
+            return 0, [0] * cycles
+        if cycles == 1:
+            (_, s, _), lv = self.reduce(terms, True, False)
+            neg = int(s < 0)
+            return len(terms) - 1 + neg, [lv + neg]
+        parts, lv1, i = [], 0, 0
+        gs = self.groups(2)
+        for g in gs:
+            t, lv = self.reduce(terms[i:i + g], len(gs) == 1, False)
+            parts.append(t)
+            lv1, i = max(lv1, lv), i + g
+        (_, s, _), lv2 = self.reduce(parts, True, False)
+        neg = int(s < 0)
+        return len(terms) - 1 + neg, [lv1, lv2 + neg]
+
+
+def shift_add_choice(x_shape, c) -> tuple[int, int] | None:
+    """(latency, adders) of the shift-and-add product of a value of Amaranth shape `x_shape` by the constant
+    c (an int or Const), or None when the multiplier is kept: when it would take more than
+    CSD_ADDERS_PER_MULTIPLIER adders per multiplier it replaces (`multipliers`, counted as at least one), or
+    more than ADDER_LEVELS_PER_CYCLE adder levels a cycle over 2 cycles. The latency is the cycles the tree
+    needs (1 or 2), and never less than the multiplier's (`product_latency`)."""
+    c = c if isinstance(c, _AConst) else Value.cast(int(c))
+    odd = _odd_part(c)
+    budget = CSD_ADDERS_PER_MULTIPLIER * max(1, multipliers(x_shape, odd.shape()))
+    plan = _ShiftAddPlan(c.value)
+    floor = product_latency(x_shape, odd.shape())
+    for cycles in (floor, 2) if floor == 1 else (2,):
+        adders, levels = plan.cost(cycles)
+        if adders <= budget and max(levels) <= ADDER_LEVELS_PER_CYCLE:
+            return cycles, adders
+    return None
+
+
+def constant_product(m: Module, x, c, name: str) -> tuple[Value, int] | None:
+    """The exact product x * c of a value x and a constant c (an Amaranth Const, or an int) by shifts and
+    adds, from a register: (value, latency); None when the multiplier is kept (`shift_add_choice`), for
+    which the caller builds one (`pipelined_product`).
+
+    c's canonical signed digits (`csd_digits`: n non-zero ones) give x c = sum of +/- x 2^k, n - 1 adders
+    in a tree of pairwise sums (`_ShiftAddPlan`; one more to negate a result whose terms all stay negative),
+    each only as wide as x and the sum's growth (the low bits of x 2^k need no adder). At most
+    ADDER_LEVELS_PER_CYCLE = 2 adder levels per cycle, as much logic as an 18x18 multiplier's own cycle: up
+    to 4 digits in one cycle (the tree, then the product register), up to 16 in two (sums of groups of 2 or 4
+    digits registered, then their sum into the product register). The latency is that, and never less than
+    the multiplier's for the same operands (`product_latency`; the tree is then spread over its 2 cycles):
+    the schedule is the multiplier's wherever that fits, and one cycle longer for 5 or more digits (or 4
+    with a final negation) on operands that fit one multiplier. The result has the shape of x * c, like
+    `pipelined_product`'s; registers are reset-less.
+
+    Threshold: at most CSD_ADDERS_PER_MULTIPLIER = 8 adders per multiplier saved. An ECP5-85k has 156
+    MULT18X18D and 83,640 LUT4s, 536 LUTs per multiplier, and the element lanes run out of multipliers
+    first (a narrow 2D lane takes about 3,500 LUTs). An adder of an 18-bit operand is about 20 bits wide (10
+    CCU2C carry cells, 20 LUTs' worth): 8 of them cost about 160 LUTs, under a third of a multiplier's share
+    of the chip. 8 adders take every constant of an 18-bit word (at most 9 signed digits: k1, c1, penalty
+    constants, the damper's slopes) but a 9-digit one whose result needs a negation; the damper table's
+    25-bit scale replaces 2 multipliers (16 adders, up to the 2-cycle limit of 16 digits).
+    """
+    x = Value.cast(x)
+    c = c if isinstance(c, _AConst) else Value.cast(int(c))
+    choice = shift_add_choice(x.shape(), c)
+    if choice is None:
+        return None
+    latency, _ = choice
+    shape = (x * c).shape()
+    plan = _ShiftAddPlan(c.value)
+
+    def reg(value, shp, nm):
+        r = Signal(shp, name=nm, reset_less=True)
+        m.d.sync += r.eq(value)
+        return r
+
+    def finish(term):
+        k, s, v = term
+        v = v.shift_left(k)
+        return -v if s < 0 else v
+
+    terms = [(k, d, x) for k, d in plan.digits]
+    if not terms:                                                    # c = 0
+        p = reg(_AConst(0, shape), shape, name)
+        return (p if latency == 1 else reg(p, shape, f"{name}_d")), latency
+    if latency == 1:
+        return reg(finish(plan.reduce(terms, True, True)[0]), shape, name), 1
+    parts, i = [], 0                                                 # 2 cycles: partial sums, then their sum
+    gs = plan.groups(2)
+    for j, g in enumerate(gs):
+        k, s, v = plan.reduce(terms[i:i + g], len(gs) == 1, True)[0]
+        parts.append((k, s, reg(v, v.shape(), f"{name}_ps{j}")))
+        i += g
+    return reg(finish(plan.reduce(parts, True, True)[0]), shape, name), 2

@@ -1,17 +1,19 @@
 """Gateware for the bit-true function units of hw/funcunits.py: reciprocal square root and inverse table.
 
-Both units are Amaranth components built from an already-constructed NumPy model object, which is
+The units are Amaranth components built from an already-constructed NumPy model object, which is
 their specification: every constant, ROM word, shift and rounding comes from the model, and for every
 input the gateware's outputs (and saturation flags or counts) equal what the model computes, bit for bit.
-`RsqrtUnit` implements `hw.funcunits.Rsqrt`; `InverseTableUnit` implements `hw.funcunits.InverseTable`
-(the damper's Phi and Psi curves of MODEL.md section 2 v2, or any other odd curve's inverse).
+`RsqrtUnit` implements `hw.funcunits.Rsqrt` (Newton), `RsqrtTableUnit` `hw.funcunits.RsqrtTable` (table
+and interpolation, one multiplier); `InverseTableUnit` implements `hw.funcunits.InverseTable` (the damper's
+Phi and Psi curves of MODEL.md section 2 v2, or any other odd curve's inverse).
 
-Both units are fully pipelined: they accept one input per clock cycle (initiation interval 1), never
+All units are fully pipelined: they accept one input per clock cycle (initiation interval 1), never
 stall (both streams are `always_ready`), and deliver the result of an input accepted in cycle c in cycle
 c + `latency`; `o.valid` is `i.valid` delayed by `latency` cycles. Every product takes PRODUCT_LATENCY = 2
 cycles (hw/rtl_fixed.py `pipelined_product`: 18x18 multipliers, or rows summed in logic for an operand of
-at most 4 bits, each followed by a register, then the sum of the partial products in another register),
-and every rounding (a product plus 2^(s-1), then an arithmetic right shift by s) one more, so that no
+at most 4 bits, each followed by a register, then the sum of the partial products in another register;
+a product by a constant, the inverse table's scale K_raw, is shifts and adds, `constant_product`, when
+they take few adders), and every rounding (a product plus 2^(s-1), then an arithmetic right shift by s) one more, so that no
 cycle holds a multiplier and a wide adder. ROMs are
 `amaranth.lib.memory.Memory` instances with synchronous read ports (block RAM) whose data is registered
 before any arithmetic.
@@ -24,10 +26,10 @@ from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
 from .fixed import Shape
-from .funcunits import InverseTable, Rsqrt
-from .rtl_fixed import pipelined_product
+from .funcunits import InverseTable, Rsqrt, RsqrtTable
+from .rtl_fixed import constant_product, pipelined_product
 
-__all__ = ["RsqrtUnit", "InverseTableUnit", "PRODUCT_LATENCY"]
+__all__ = ["RsqrtUnit", "RsqrtTableUnit", "InverseTableUnit", "PRODUCT_LATENCY"]
 
 # cycles of every product in the units: a product wider than one 18x18 multiplier takes 2 (registered
 # partial products, then their sum: hw/rtl_fixed.py `pipelined_product`); narrower ones are delayed to 2
@@ -70,9 +72,11 @@ class _Pipe:
 
     def product(self, a, b, latency: int, name=None):
         """The exact product a * b after `latency` cycles (>= its `product_latency`): DSP-sized partial
-        products and their sum (hw/rtl_fixed.py `pipelined_product`), then delay registers, so that the
-        latency does not depend on the operands' widths."""
-        prod, lat = pipelined_product(self.m, a, b, name)
+        products and their sum (hw/rtl_fixed.py `pipelined_product`), or for a constant b (an int) shifts
+        and adds when they take few adders (`constant_product`), then delay registers, so that the
+        latency does not depend on the operands' widths or on the form built."""
+        built = constant_product(self.m, a, b, name) if isinstance(b, int) else None
+        prod, lat = built or pipelined_product(self.m, a, b, name)
         if lat > latency:
             raise AssertionError(f"product {name} takes {lat} cycles, more than the {latency} scheduled")
         return self.delay(prod, latency - lat)
@@ -168,51 +172,12 @@ class RsqrtUnit(wiring.Component):
         m = Module()
         p = _Pipe(m)
         md = self.model
-        ins, out = md.in_shape, md.out_shape
-        M, Y, sb, fi, fo = md.M, md.Y, md.seed_bits, ins.f, out.f
-        Wn = _bits(ins.max_raw)          # bit length of the largest positive input
-        L_CAP = out.width                # a left shift by >= out.width overflows for every y >= 1
+        M, Y, sb = md.M, md.Y, md.seed_bits
 
         _delay_valid(m, self.i.valid, self.o.valid, self.latency)   # o.valid = i.valid, latency later
 
-        # ---- cycle 1: sign test and bit length
-        x = self.i.payload
-        positive = (x > 0)
-        xs = Signal(Wn)
-        m.d.comb += xs.eq(Mux(positive, x[:Wn], 1))
-        n = Signal(range(Wn + 1))
-        for b in range(Wn):              # the last matching statement wins: highest set bit
-            with m.If(xs[b]):
-                m.d.comb += n.eq(b + 1)
-        pos1, xs1, n1 = p.reg(positive, name="pos1"), p.reg(xs, name="xs1"), p.reg(n, name="n1")
-
-        # ---- cycle 2: left-normalise; per-n constants (d, output shifts)
-        lsh = Signal(range(Wn))
-        d = Signal()
-        rs = Signal(range(Y + 4))
-        ls = Signal(range(L_CAP + 1))
-        with m.Switch(n1):
-            for nv in range(1, Wn + 1):
-                dv = (nv - fi) & 1
-                e = (nv + dv - fi) >> 1
-                s = Y + e - fo
-                with m.Case(nv):
-                    m.d.comb += [lsh.eq(Wn - nv), d.eq(dv), rs.eq(min(max(s, 0), Y + 3)),
-                                 ls.eq(min(max(-s, 0), L_CAP))]
-            with m.Default():           # n = 0: x <= 0, whose output is the saturated maximum anyway
-                m.d.comb += [lsh.eq(Wn - 1), d.eq(0), rs.eq(0), ls.eq(0)]
-        xn2 = p.reg((xs1 << lsh)[:Wn], unsigned(Wn), name="xn2")
-        d2, rs2, ls2, pos2 = p.reg(d, name="d2"), p.reg(rs, name="rs2"), p.reg(ls, name="ls2"), p.reg(pos1)
-
-        # ---- cycle 3: mantissa m in UQ(0, M)
-        def mantissa(dv):
-            r = Wn + dv - M
-            if r <= 0:
-                return xn2.shift_left(-r)                        # exact
-            v = (xn2 + (1 << (r - 1))).shift_right(r)            # shift_round
-            return Mux(v > (1 << M) - 1, (1 << M) - 1, v)
-        m3 = p.reg(Mux(d2, mantissa(1), mantissa(0)), unsigned(M), name="m3")
-        rs3, ls3, pos3 = p.reg(rs2), p.reg(ls2), p.reg(pos2)
+        # ---- cycles 1 to 3: normalise
+        m3, rs3, ls3, pos3 = _rsqrt_normalise(m, p, self.i.payload, md)
 
         # ---- cycle 4: seed ROM
         rom = Memory(shape=unsigned(Y + 2), depth=len(md.seed_table),
@@ -243,18 +208,166 @@ class RsqrtUnit(wiring.Component):
             mm, rs_, ls_, pos_ = [p.delay(s_, PRODUCT_LATENCY + 1) for s_ in side]
 
         # ---- denormalise and saturate (2 cycles)
-        rr = p.reg((y.shift_left(1) >> rs_), unsigned(Y + 3), name="dn_r")
-        wide = y << ls_
-        lv = p.reg(wide[:out.width], unsigned(out.width), name="dn_l")
-        lovf = p.reg(wide > out.max_raw, name="dn_lovf")
-        useleft = p.reg(ls_ != 0, name="dn_useleft")
-        posf = p.reg(pos_, name="dn_pos")
-        res_r = (rr + 1).shift_right(1)
-        ovf = Mux(useleft, lovf, res_r > out.max_raw)
-        res = Mux(useleft, lv, res_r)
-        sat = ~posf | ovf
-        value = p.reg(Mux(sat, out.max_raw, res), _raw_shape(out), name="out_value")
-        satr = p.reg(sat, name="out_sat")
+        value, satr = _rsqrt_denormalise(p, y, rs_, ls_, pos_, md)
+        m.d.comb += [self.o.payload.value.eq(value), self.o.payload.saturated.eq(satr)]
+        return m
+
+
+def _rsqrt_normalise(m, p: _Pipe, x, md):
+    """Cycles 1 to 3 of RsqrtUnit and RsqrtTableUnit (the models' step 2): the registered mantissa m3 in
+    UQ(0, M) (M = md.M), the output's right and left shifts and the x > 0 flag, 3 cycles after x."""
+    ins, out = md.in_shape, md.out_shape
+    M, Y, fi, fo = md.M, md.Y, ins.f, out.f
+    Wn = _bits(ins.max_raw)          # bit length of the largest positive input
+    L_CAP = out.width                # a left shift by >= out.width overflows for every y >= 1
+
+    # ---- cycle 1: sign test and bit length
+    positive = (x > 0)
+    xs = Signal(Wn)
+    m.d.comb += xs.eq(Mux(positive, x[:Wn], 1))
+    n = Signal(range(Wn + 1))
+    for b in range(Wn):              # the last matching statement wins: highest set bit
+        with m.If(xs[b]):
+            m.d.comb += n.eq(b + 1)
+    pos1, xs1, n1 = p.reg(positive, name="pos1"), p.reg(xs, name="xs1"), p.reg(n, name="n1")
+
+    # ---- cycle 2: left-normalise; per-n constants (d, output shifts)
+    lsh = Signal(range(Wn))
+    d = Signal()
+    rs = Signal(range(Y + 4))
+    ls = Signal(range(L_CAP + 1))
+    with m.Switch(n1):
+        for nv in range(1, Wn + 1):
+            dv = (nv - fi) & 1
+            e = (nv + dv - fi) >> 1
+            s = Y + e - fo
+            with m.Case(nv):
+                m.d.comb += [lsh.eq(Wn - nv), d.eq(dv), rs.eq(min(max(s, 0), Y + 3)),
+                             ls.eq(min(max(-s, 0), L_CAP))]
+        with m.Default():           # n = 0: x <= 0, whose output is the saturated maximum anyway
+            m.d.comb += [lsh.eq(Wn - 1), d.eq(0), rs.eq(0), ls.eq(0)]
+    xn2 = p.reg((xs1 << lsh)[:Wn], unsigned(Wn), name="xn2")
+    d2, rs2, ls2, pos2 = p.reg(d, name="d2"), p.reg(rs, name="rs2"), p.reg(ls, name="ls2"), p.reg(pos1)
+
+    # ---- cycle 3: mantissa m in UQ(0, M)
+    def mantissa(dv):
+        r = Wn + dv - M
+        if r <= 0:
+            return xn2.shift_left(-r)                        # exact
+        v = (xn2 + (1 << (r - 1))).shift_right(r)            # shift_round
+        return Mux(v > (1 << M) - 1, (1 << M) - 1, v)
+    m3 = p.reg(Mux(d2, mantissa(1), mantissa(0)), unsigned(M), name="m3")
+    return m3, p.reg(rs2), p.reg(ls2), p.reg(pos2)
+
+
+def _rsqrt_denormalise(p: _Pipe, y, rs_, ls_, pos_, md):
+    """The last 2 cycles of RsqrtUnit and RsqrtTableUnit (the models' step 5): y in UQ(2, Y) shifted by
+    rs_ / ls_ and saturated into md.out_shape; returns the registered (value, saturated)."""
+    out, Y = md.out_shape, md.Y
+    rr = p.reg((y.shift_left(1) >> rs_), unsigned(Y + 3), name="dn_r")
+    wide = y << ls_
+    lv = p.reg(wide[:out.width], unsigned(out.width), name="dn_l")
+    lovf = p.reg(wide > out.max_raw, name="dn_lovf")
+    useleft = p.reg(ls_ != 0, name="dn_useleft")
+    posf = p.reg(pos_, name="dn_pos")
+    res_r = (rr + 1).shift_right(1)
+    ovf = Mux(useleft, lovf, res_r > out.max_raw)
+    res = Mux(useleft, lv, res_r)
+    sat = ~posf | ovf
+    value = p.reg(Mux(sat, out.max_raw, res), _raw_shape(out), name="out_value")
+    satr = p.reg(sat, name="out_sat")
+    return value, satr
+
+
+class RsqrtTableUnit(wiring.Component):
+    """Reciprocal square root 1/sqrt(v) by table and linear interpolation, bit-true to a
+    `hw.funcunits.RsqrtTable` model (the specification): one product and one ROM.
+
+    Parameters
+    ----------
+    model : :class:`hw.funcunits.RsqrtTable`
+        The NumPy model; its formats, tables (`c0`, `slope`), mantissa width `M`, iterate width `Y`, `S`
+        and `F` define the unit.
+
+    Attributes
+    ----------
+    i, o : as :class:`RsqrtUnit` (raw input; output ``value`` and ``saturated``).
+    latency : int
+        ``8 + PRODUCT_LATENCY`` = 10 cycles: 3 of normalisation, 1 of ROM, 1 of ROM output register,
+        PRODUCT_LATENCY of the product, 1 of interpolation, 2 of denormalisation.
+
+    Algorithm (the model's steps 1-5; each cycle ends in a register):
+
+    - cycles 1 to 3: the mantissa m in UQ(0, M) and the output shifts, as RsqrtUnit;
+    - cycle 4: ROM of 2^S words at address Cat(j, o): o = m[M-1], j = m[M-S:M-1] (o = 1) or
+      m[M-S-1:M-2] (o = 0); word = (c0 - 2^Y in Y bits, sl); frac = m[:F] (o = 1) or m[:F-1] << 1 (o = 0);
+    - cycle 5: the ROM word in a register (no arithmetic after a block RAM's output);
+    - cycles 6 and 7: the product frac * sl (hw/rtl_fixed.py `pipelined_product`: F x bits(sl) bits,
+      12 x 13 for an 18-bit output with the default 4 guard bits: one multiplier);
+    - cycle 8: y = c0 - ((frac sl + 2^(F-1)) >> F), formed in one subtraction as
+      (c0 2^F + 2^(F-1) - 1 - frac sl) >> F (an identity of floors), the constant part a concatenation
+      (1, the ROM's c0 - 2^Y, then 2^(F-1) - 1 in F bits);
+    - cycles 9 and 10: denormalise and saturate, as RsqrtUnit.
+
+    Throughput: one input per cycle, no stalls.
+    """
+
+    def __init__(self, model: RsqrtTable):
+        if not isinstance(model, RsqrtTable):
+            raise TypeError(f"RsqrtTableUnit needs a hw.funcunits.RsqrtTable model, got {type(model).__name__} "
+                            f"({model!r})")
+        self.model = model
+        self.latency = 8 + PRODUCT_LATENCY
+        # its memories, known at construction (name, depth, width): the table ROM
+        layout, init = self._rom_layout()
+        self.memories = [{"name": "table_rom", "depth": len(init), "width": layout.size}]
+        super().__init__({
+            "i": In(stream.Signature(_raw_shape(model.in_shape), always_ready=True)),
+            "o": Out(stream.Signature(data.StructLayout({"value": _raw_shape(model.out_shape), "saturated": 1}),
+                                      always_ready=True)),
+        })
+
+    def _rom_layout(self):
+        """The table ROM's word layout (c0 - 2^Y in Y bits, the slope) and its 2^S words."""
+        md = self.model
+        layout = data.StructLayout({"c0": unsigned(md.Y), "sl": unsigned(_bits(int(md.slope.max())))})
+        init = [{"c0": int(c) - (1 << md.Y), "sl": int(v)} for c, v in zip(md.c0, md.slope)]
+        return layout, init
+
+    def elaborate(self, platform):
+        m = Module()
+        p = _Pipe(m)
+        md = self.model
+        M, Y, S, F = md.M, md.Y, md.S, md.F
+
+        _delay_valid(m, self.i.valid, self.o.valid, self.latency)
+
+        # ---- cycles 1 to 3: normalise
+        m3, rs3, ls3, pos3 = _rsqrt_normalise(m, p, self.i.payload, md)
+
+        # ---- cycle 4: table ROM
+        layout, init = self._rom_layout()
+        rom = Memory(shape=layout, depth=1 << S, init=init)
+        m.submodules.table_rom = rom
+        rp = rom.read_port(domain="sync")
+        o = m3[M - 1]
+        j = Mux(o, m3[M - S:M - 1], m3[M - S - 1:M - 2])
+        m.d.comb += rp.addr.eq(Cat(j, o))
+        frac = Mux(o, m3[:F], Cat(Const(0, 1), m3[:F - 1]))
+        # ---- cycle 5: the ROM word in a register
+        row = data.View(layout, p.reg(rp.data.as_value(), name="row"))
+        frac5 = p.delay(frac, 2, name="frac")
+        rs_, ls_, pos_ = [p.delay(s_, 2) for s_ in (rs3, ls3, pos3)]
+
+        # ---- cycles 6 and 7: the product; cycle 8: y = c0 - ((frac sl + 2^(F-1)) >> F)
+        #      = floor((c0 2^F + 2^(F-1) - 1 - frac sl) / 2^F)
+        prod = p.product(frac5, row.sl, PRODUCT_LATENCY, name="frac_sl")
+        c0f = p.delay(Cat(Const((1 << (F - 1)) - 1, F), row.c0, Const(1, 1)), PRODUCT_LATENCY, name="c0f")
+        y = p.reg((c0f - prod).shift_right(F)[:Y + 2], unsigned(Y + 2), name="y")
+        rs_, ls_, pos_ = [p.delay(s_, PRODUCT_LATENCY + 1) for s_ in (rs_, ls_, pos_)]
+
+        # ---- cycles 9 and 10: denormalise and saturate
+        value, satr = _rsqrt_denormalise(p, y, rs_, ls_, pos_, md)
         m.d.comb += [self.o.payload.value.eq(value), self.o.payload.saturated.eq(satr)]
         return m
 

@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 from golden.elements import DamperLaw
 from hw.datapath import phi_curve, psi_curve
 from hw.fixed import SQ, UQ, Saturations
-from hw.funcunits import InverseTable, OddCurve, Rsqrt, _bit_length, _mul_shift_round
+from hw.funcunits import InverseTable, OddCurve, Rsqrt, RsqrtTable, _bit_length, _mul_shift_round
 
 # float64 evaluation of measured errors and bounds: a relative slack far below every bound's size
 SLACK = 1e-9
@@ -80,7 +80,8 @@ def _rsqrt_a_priori_bound(unit: Rsqrt) -> float:
 def _rsqrt_check(unit: Rsqrt, x: np.ndarray, label: str):
     """Check every output in x against 1/sqrt(v); returns the measured statistics."""
     # the unit's stated bound is no looser than the a-priori one (so a wrong ROM cannot hide in it)
-    assert unit.internal_relative_error_bound() <= _rsqrt_a_priori_bound(unit) * (1 + SLACK)
+    a_priori = _rsqrt_table_a_priori_bound(unit) if isinstance(unit, RsqrtTable) else _rsqrt_a_priori_bound(unit)
+    assert unit.internal_relative_error_bound() <= a_priori * (1 + SLACK)
     sat = Saturations()
     out = unit(x, sat)
     assert out.dtype == np.int64
@@ -115,9 +116,15 @@ def _rsqrt_check(unit: Rsqrt, x: np.ndarray, label: str):
     ibias = float(np.mean(internal / r[checked] - 1))
     if E * r[checked].max() <= 0.5 * o.lsb:
         assert abs(bias) <= 0.05, f"{label}: bias {bias:.4f} LSB"
+    elif isinstance(unit, RsqrtTable):
+        # the centred line's error spans [-G/2, G/2] over a segment (G the chord's gap) with mean +G/6: at
+        # most a third of the bound where the line dominates, less where the roundings do
+        assert abs(ibias) <= E / 3, f"{label}: mean relative error {ibias:.3e} vs bound {E:.3e}"
     else:
         assert abs(ibias) <= 0.2 * E, f"{label}: mean relative error {ibias:.3e} vs bound {E:.3e}"
-    _row(f"{label:<34}", f"sb={unit.seed_bits:2d} N={unit.newton_steps}", f"n={len(x):8d}",
+    config = f"S={unit.S:2d} g={unit.guard_bits}" if isinstance(unit, RsqrtTable) else \
+        f"sb={unit.seed_bits:2d} N={unit.newton_steps}"
+    _row(f"{label:<34}", config, f"n={len(x):8d}",
          f"int.rel max {irel.max():.2e} <= {E:.2e}",
          f"rel max {rel.max():.2e} <= {unit.max_relative_error_bound():.2e}",
          f"max |err| {lsb_err.max():9.3f} LSB (err/bound {worst:.3f})", f"bias {bias:+.4f} LSB",
@@ -284,6 +291,139 @@ def test_rsqrt_rejects_bad_shapes():
         Rsqrt("UQ(4, 16)", SQ(6, 12))
     with pytest.raises(ValueError, match="narrower than seed_bits"):
         Rsqrt(UQ(4, 16), SQ(2, 4), seed_bits=12, guard_bits=2)
+
+
+# ============================================================================================ RsqrtTable
+
+def _rsqrt_table_a_priori_bound(unit: RsqrtTable) -> float:
+    """The RsqrtTable docstring's bound from S, Y and the formats alone (not the unit's table):
+    h^2/16 max|f''| relative, (3/16) 2^-2S (1 + 2^(1-S))^(1/2), plus 5/4 2^-Y of roundings."""
+    S, Y, M = unit.S, unit.Y, unit.M
+    E = 3 / 16 * 2.0 ** (-2 * S) * math.sqrt(1 + 2.0 ** (1 - S)) + 1.25 * 2.0 ** -Y
+    k_max = int(unit.in_shape.max_raw).bit_length() + 1
+    eps_m = 1 / math.sqrt(1 - 2.0 ** (1 - M)) - 1 if k_max > M else 0.0
+    return (1 + E) * (1 + eps_m) - 1
+
+
+RSQRT_TABLE_EXHAUSTIVE = [
+    # in, out, segments_log2, guard_bits
+    (UQ(4, 16), SQ(6, 12), 10, 4),        # 20-bit input, 18-bit output, the presets' table
+    (UQ(4, 16), SQ(6, 12), 6, 2),         # few segments: the interpolation error dominates
+    (SQ(8, 12), UQ(2, 22), 10, 2),        # 24-bit output
+    (UQ(8, 8), SQ(6, 12), 8, 4),          # 16-bit input
+    (SQ(-3, 19), UQ(8, 10), 7, 1),        # input values < 1/16
+    (UQ(6, 10), SQ(-1, 19), 9, 2),        # output values < 1/4
+    (UQ(4, 8), UQ(2, 8), 4, 0),           # M = 10 < 13 = k_max: mantissa rounding
+    (UQ(4, 4), UQ(2, 4), 5, 0),           # M = S + 1: F = 1, the lower octave's fraction is always 0
+    (UQ(8, 8), UQ(2, 12), 2, 2),          # one segment per octave
+    # the formats of the scenes' 1/sqrt units under the narrow and medium presets (S = 10, 4 guard bits):
+    # every positive input
+    (SQ(-3, 21), SQ(8, 10), 10, 4),       # press-2d-rheological inv_l and tinv
+    (SQ(0, 18), SQ(7, 11), 10, 4),        # press-3d-rheological inv_l
+    (SQ(-6, 24), SQ(9, 9), 10, 4),        # press-3d-rheological tinv2
+    (SQ(-2, 20), SQ(8, 10), 10, 4),       # friction-3d-mu03 inv_l
+    (SQ(-10, 28), SQ(12, 6), 10, 4),      # friction-3d-mu03 tinv2
+    (SQ(-7, 25), SQ(11, 7), 10, 4),       # friction-3d-mu03 cinv2
+    (SQ(-33, 51), SQ(32, -14), 10, 4),    # friction-3d-mu03 finv
+]
+
+
+@pytest.mark.parametrize("ins,outs,S,g", RSQRT_TABLE_EXHAUSTIVE,
+                         ids=[f"{i}->{o}-S{s}-g{g}" for i, o, s, g in RSQRT_TABLE_EXHAUSTIVE])
+def test_rsqrt_table_exhaustive(ins, outs, S, g):
+    unit = RsqrtTable(ins, outs, segments_log2=S, guard_bits=g)
+    x = np.arange(1, ins.max_raw + 1, dtype=np.int64)
+    stats = _rsqrt_check(unit, x, f"rsqrt table {ins}->{outs}")
+    # the analysis is not vacuous: the measured internal error reaches a fair part of the bound
+    assert stats["irel"] >= stats["E"] / 2
+
+
+def test_rsqrt_table_preset_configuration():
+    """The narrow and medium presets' table (S = 10, 4 guard bits) on an 18-bit output: 1,024 words of
+    35 bits (c0 - 2^Y in 22 bits and a 13-bit slope: two 1024 x 18 block RAMs), a 12 x 13-bit product,
+    a bound below 2^-21 relative (the h^2/16 max|f''| term 1.8e-7), far below the Newton step's."""
+    unit = RsqrtTable(UQ(4, 16), SQ(6, 12))
+    assert (unit.S, unit.guard_bits, unit.M, unit.Y, unit.F) == (10, 4, 22, 22, 12)
+    assert len(unit.c0) == 1024 and unit.to_dict()["rom_word_bits"] == 35 <= 36
+    assert np.all((unit.c0 >= 1 << unit.Y) & (unit.c0 < 1 << (unit.Y + 1)))
+    assert int(unit.slope.min()) > 0 and int(unit.slope.max()).bit_length() == 13
+    E = unit.internal_relative_error_bound()
+    assert E <= 2.0 ** -21 and E <= _rsqrt_table_a_priori_bound(unit)
+    assert 3 / 16 * 2.0 ** -20 == pytest.approx(1.79e-7, rel=1e-2)
+    assert Rsqrt(UQ(4, 16), SQ(6, 12), seed_bits=9, newton_steps=1).internal_relative_error_bound() > 10 * E
+
+
+def test_rsqrt_table_error_shrinks_4x_per_segment_bit():
+    """With the roundings made negligible (Y = 30), the error is the centred line's h^2/16 max|f''|:
+    a quarter for every bit of S, close to the a-priori (3/16) 2^-2S."""
+    ins, outs = UQ(4, 16), UQ(2, 24)
+    x = np.arange(1, ins.max_raw + 1, 3, dtype=np.int64)
+    r = Rsqrt.reference(ins.to_float(x))
+    errs = []
+    for S in (5, 6, 7, 8):
+        unit = RsqrtTable(ins, outs, segments_log2=S, guard_bits=6)
+        errs.append(float(np.max(np.abs(unit.internal(x) / r - 1))))
+        assert errs[-1] <= unit.internal_relative_error_bound() * (1 + SLACK)
+        assert errs[-1] == pytest.approx(3 / 16 * 2.0 ** (-2 * S), rel=0.1)
+    assert np.allclose(np.array(errs[:-1]) / np.array(errs[1:]), 4.0, rtol=0.05)
+
+
+def test_rsqrt_table_edge_cases():
+    ins, outs = UQ(4, 16), SQ(6, 12)
+    unit = RsqrtTable(ins, outs, name="inv_l")
+    E = unit.internal_relative_error_bound()
+    # x = 1: v = 2^-16, 1/sqrt(v) = 256 does not fit SQ(6, 12) (max 32): saturates, counted
+    sat = Saturations()
+    assert unit(np.array([1]), sat)[0] == outs.max_raw and sat == {"inv_l": 1}
+    # powers of four have the mantissa 1/4 (the first segment's start, the clamped word) or 1/2: the
+    # output is exact where 1/sqrt(v) is representable and the internal error below half an LSB
+    j = np.arange(0, 20)
+    x = np.int64(1) << j
+    out = unit(x)
+    r = Rsqrt.reference(ins.to_float(x))
+    fits = r * (1 + E) + 0.5 * outs.lsb <= outs.max_value
+    exact = fits & ((16 - j) % 2 == 0) & (E * r < 0.5 * outs.lsb)
+    assert exact.sum() >= 6
+    assert np.array_equal(outs.to_float(out[exact]), r[exact])
+    # zero and negative inputs (a signed input format): the maximum, one saturation each
+    sunit = RsqrtTable(SQ(8, 12), SQ(6, 12), name="inv_l")
+    sat = Saturations()
+    out = sunit(np.array([0, -1, SQ(8, 12).min_raw, 4096]), sat)
+    assert list(out[:3]) == [SQ(6, 12).max_raw] * 3 and out[3] == 1 << 12
+    assert sat == {"inv_l": 3}
+    assert np.array_equal(sunit(np.array([0, -1, 4096])), out[[0, 1, 3]])
+    # shapes are preserved; inputs outside the format are a usage error
+    assert unit(np.full((3, 2), 1 << 16)).shape == (3, 2)
+    with pytest.raises(ValueError, match="outside"):
+        unit(np.array([1 << 20]))
+    with pytest.raises(ValueError, match="integers"):
+        unit(np.array([1.0]))
+    # left output shifts (outputs that overflow) and int64 safety, as Rsqrt
+    tiny = RsqrtTable(UQ(0, 32), UQ(-8, 40), segments_log2=9)
+    x = np.array([1, 2, 3, 1 << 20, (1 << 32) - 1])
+    sat = Saturations()
+    assert np.all(tiny(x, sat) == UQ(-8, 40).max_raw) and sat.total == len(x)
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    (dict(segments_log2=1), "segments_log2"), (dict(segments_log2=13), "segments_log2"),
+    (dict(segments_log2=10.0), "segments_log2"), (dict(guard_bits=-1), "guard_bits"),
+    (dict(guard_bits=9), "guard_bits"),
+])
+def test_rsqrt_table_rejects_bad_arguments(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        RsqrtTable(UQ(4, 16), SQ(6, 12), **kwargs)
+
+
+def test_rsqrt_table_rejects_bad_shapes():
+    with pytest.raises(ValueError, match="at most 32"):
+        RsqrtTable(UQ(4, 30), SQ(6, 12))
+    with pytest.raises(ValueError, match="Shape"):
+        RsqrtTable("UQ(4, 16)", SQ(6, 12))
+    with pytest.raises(ValueError, match="segments_log2 \\+ 1"):
+        RsqrtTable(UQ(4, 16), SQ(2, 4), segments_log2=10, guard_bits=0)
+    with pytest.raises(ValueError, match="no positive values"):
+        RsqrtTable(SQ(1, 0), SQ(6, 12))
 
 
 # ========================================================================================= inverse tables

@@ -6,11 +6,12 @@ import re
 import numpy as np
 import pytest
 from amaranth.back import rtlil
-from amaranth.hdl import Module, Signal, signed, unsigned
+from amaranth.hdl import Module, Signal, Value, signed, unsigned
 from amaranth.sim import Simulator
 
 from hw.fixed import SQ, UQ, Saturations, add, mul
-from hw.rtl_fixed import DSP_BITS, Const, FixedValue, as_shape, pipelined_product, product_latency
+from hw.rtl_fixed import (CSD_ADDERS_PER_MULTIPLIER, DSP_BITS, Const, FixedValue, as_shape, constant_product,
+                          csd_digits, multipliers, pipelined_product, product_latency, shift_add_choice)
 
 CASES = 400
 
@@ -119,6 +120,15 @@ PRODUCTS = [(signed(18), signed(18), 1, 1), (unsigned(18), unsigned(18), 1, 1),
 
 
 @pytest.mark.parametrize("sa, sb, latency, mults", PRODUCTS, ids=[f"{a}x{b}" for a, b, _, _ in PRODUCTS])
+def test_multipliers_counts_what_pipelined_product_builds(sa, sb, latency, mults):
+    """multipliers() (the shift-add products' budget) equals the $mul cells of the products above; a
+    constant counts by its odd part."""
+    from hw.rtl_fixed import _odd_part
+    b = _odd_part(Value.cast(sb)).shape() if isinstance(sb, int) else sb
+    assert multipliers(sa, b) == mults
+
+
+@pytest.mark.parametrize("sa, sb, latency, mults", PRODUCTS, ids=[f"{a}x{b}" for a, b, _, _ in PRODUCTS])
 def test_pipelined_product_is_exact_with_its_latency(sa, sb, latency, mults):
     """Every product equals a * b, `latency` cycles after its operands; every multiplier of the RTLIL
     has operands of at most 18 bits, and there are as many as the limbs make."""
@@ -183,3 +193,195 @@ def test_saturate_clamps_every_raw_value(raw_shape, dst):
     got = _run_comb([s], [(out, val.raw), (fl, flag)], [[x] for x in xs])
     assert [int(v) for v in got[:, 0]] == [min(max(x, dst.min_raw), dst.max_raw) for x in xs]
     assert [int(v) for v in got[:, 1]] == [int(not dst.min_raw <= x <= dst.max_raw) for x in xs]
+
+
+# ------------------------------------------------------------------------------------- constant products
+
+# constants: zero, +/- 1, powers of two, negative ones, sparse and dense signed-digit patterns (9 digits,
+# the most an 18-bit word has; 7 digits ending in a negation), the narrow square's element constants
+# (k1 = 85899, c1 = 83886, 130941, 25 * 4096, 104753), press-2d's c1 (104858, 9 digits), 78125, the damper
+# tables' 25-bit scales (2 multipliers: up to 16 adders); and dense ones that keep their multiplier (a
+# 9-digit 18-bit constant whose sum needs a negation: 9 adders; 17 digits, or 13 and a negation: more than
+# 2 adder levels in a cycle)
+SHIFT_ADD_CONSTANTS = [0, 1, -1, 2, -2, 1 << 17, -(1 << 17), 3, -3, 5, -5, 7, -7, 25, -17, 0b1010101010101,
+                       -0b1010101010101, 0b101010101010101, 87381, 85899, 83886, -83886, 130941, 25 * 4096,
+                       104753, -104753, 104858, 78125, (1 << 17) - 1, -(1 << 17) + 1]
+WIDE_CONSTANTS = [27780865, 32006401, 17779753, 0x2AAAAAA, -0x2AAAAA7, -27780865]
+DENSE_CONSTANTS = [-87381, 0x2AAAAAAAA, -0x2AAAAAA]
+
+
+def test_csd_digits_are_canonical_and_exact():
+    """csd_digits: sum d 2^k = c, digits +/- 1, no two adjacent, no more than the binary digits of |c|; over
+    every c in [-4096, 4096] and the constants above."""
+    for c in [*range(-4096, 4097), *SHIFT_ADD_CONSTANTS, *DENSE_CONSTANTS]:
+        d = csd_digits(c)
+        assert sum(s << k for k, s in d) == c
+        assert all(s in (1, -1) for _, s in d)
+        ks = [k for k, _ in d]
+        assert ks == sorted(ks) and all(b - a >= 2 for a, b in zip(ks, ks[1:]))
+        assert len(d) <= bin(abs(c)).count("1")
+    assert [len(csd_digits(c)) for c in (7, 85899, 104753, 0b1010101010101, 87381)] == [2, 7, 8, 7, 9]
+
+
+def _check_constant_products(x_shape, constants, values):
+    """Every constant_product of x by the constants equals x * c exactly, `latency` cycles after x, from
+    adders only (no $mul cell); the latency is the stated one (`shift_add_choice`), no less than the
+    multiplier's."""
+    x = Signal(x_shape)
+    m = Module()
+    outs = []
+    for j, c in enumerate(constants):
+        p, lat = constant_product(m, x, c, f"p{j}")
+        assert lat == shift_add_choice(x_shape, c)[0] in (1, 2)
+        assert lat >= product_latency(x_shape, Value.cast(c).shape()) or c % 2 == 0
+        assert p.shape() == (x * c).shape()
+        pv = Signal(p.shape(), name=f"o{j}")
+        m.d.comb += pv.eq(p)
+        outs.append((pv, lat, c))
+    assert "cell $mul" not in rtlil.convert(m, ports=[x, *(o for o, _, _ in outs)])
+    got = {j: [] for j in range(len(outs))}
+
+    async def tb(ctx):
+        for cyc in range(len(values) + 2):
+            ctx.set(x, int(values[cyc]) if cyc < len(values) else 0)
+            await ctx.tick()
+            for j, (o, lat, _) in enumerate(outs):
+                if cyc + 1 >= lat and cyc + 1 - lat < len(values):
+                    got[j].append(ctx.get(o))
+    sim = Simulator(m)
+    sim.add_clock(1e-8)
+    sim.add_testbench(tb)
+    sim.run()
+    for j, (_, _, c) in enumerate(outs):
+        assert got[j] == [int(v) * c for v in values], f"x * {c} differs"
+
+
+@pytest.mark.hdl
+@pytest.mark.parametrize("x_shape", [signed(18), unsigned(18), signed(10), unsigned(4), signed(1), signed(36)],
+                         ids=str)
+def test_constant_product_is_exact(x_shape):
+    """x * c by shifts and adds against the exact integer product: every x of a 10-, 4- or 1-bit operand,
+    the extremes and random values of 18- and 36-bit ones, for every constant above."""
+    lo, hi = ((-(1 << (x_shape.width - 1)), (1 << (x_shape.width - 1)) - 1) if x_shape.signed
+              else (0, (1 << x_shape.width) - 1))
+    if x_shape.width <= 10:
+        values = list(range(lo, hi + 1))
+    else:
+        rng = np.random.default_rng(x_shape.width)
+        values = [lo, hi, lo + 1, hi - 1, 0, 1, -1 if x_shape.signed else 2]
+        values += [int(v) for v in rng.integers(lo, hi, 1500, endpoint=True)]
+    consts = SHIFT_ADD_CONSTANTS + (WIDE_CONSTANTS if x_shape.width > 4 else [])
+    assert all(shift_add_choice(x_shape, c) is not None for c in consts)
+    _check_constant_products(x_shape, consts, values)
+
+
+def test_constant_product_threshold():
+    """At most CSD_ADDERS_PER_MULTIPLIER = 8 adders per multiplier saved (every 18-bit constant, at most 9
+    signed digits, but one needing a negation), at most 2 adder levels a cycle over 2 cycles; denser
+    constants are left to the multiplier (None). Up to 4 digits take one cycle, like the 18x18 multiplier
+    they replace; a 25-bit constant replaces 2 multipliers and keeps their 2 cycles."""
+    assert CSD_ADDERS_PER_MULTIPLIER == 8
+    m = Module()
+    x = Signal(signed(18))
+    for c in DENSE_CONSTANTS:
+        assert shift_add_choice(x.shape(), c) is None and constant_product(m, x, c, "p") is None
+    assert ([shift_add_choice(x.shape(), c) for c in (0, 1, -1, 25, 130941, 85899, 104753, 104858, 17779753)]
+            == [(1, 0), (1, 0), (1, 1), (1, 2), (1, 3), (2, 6), (2, 7), (2, 8), (2, 8)])
+    # a wide operand keeps the multiplier's 2 cycles even for a 1-digit constant
+    _, lat = constant_product(m, Signal(signed(36)), 4, "q")
+    assert lat == 2
+    assert "cell $mul" not in rtlil.convert(m, ports=[x])
+
+
+@pytest.mark.hdl
+@pytest.mark.parametrize("value", [1.5, -0.3125, 0.6, -1.2345678, 0.0, 1.3333333, -1.3333333], ids=str)
+def test_pipeline_product_by_a_constant_equals_the_bit_true_model(value):
+    """PipeArith.mul by a constant (hw/pipeline.py): shift-add or multiplier as the constant's digits decide,
+    the result at the stage the form built states, rounded and saturated exactly as hw/fixed.py mul, with
+    its saturation flags. Raw constants: 98304 and -20480 (2 digits: one cycle), 39322 and -80909 (8 and 6:
+    two cycles), 0, 87381 (9 digits: 8 adders, two cycles) and -87381 (9 digits and a negation: a
+    multiplier)."""
+    from hw.pipeline import PipeArith
+    fx, fk, fq = SQ(3, 15), SQ(2, 16), SQ(2, 10)
+    k_raw = int(fk.from_float(value))
+    choice = shift_add_choice(signed(18), k_raw)
+    sparse = choice is not None
+    m = Module()
+    valid, x = Signal(), Signal(signed(18))
+    ar = PipeArith(m, {"x": fx, "k": fk, "q": fq}, {}, valid, "lane")
+    with ar:
+        r = ar.mul(ar.const("k", value), ar.input(x, "x", 0), "q")
+        events = dict(ar.saturation_events())
+    text = rtlil.convert(m, ports=[valid, x, r.sig])
+    assert ("cell $mul" in text) == (not sparse)
+    assert r.stage == 1 + (choice[0] if sparse else 1)
+    rng = np.random.default_rng(abs(k_raw))
+    xs = [fx.min_raw, fx.max_raw, 0, 1, -1] + [int(v) for v in rng.integers(fx.min_raw, fx.max_raw, 600, endpoint=True)]
+    expected, flags = [], []
+    for v in xs:
+        s = Saturations()
+        expected.append(int(mul(np.array([v]), fx, np.array([k_raw]), fk, fq, s, "q")[0]))
+        flags.append(s.total)
+    got, sats = [], []
+    L = r.stage
+
+    async def tb(ctx):
+        for c in range(len(xs) + L + 3):
+            ctx.set(valid, int(c < len(xs)))
+            ctx.set(x, xs[c] if c < len(xs) else 0)
+            await ctx.tick()
+            if 0 <= c - L + 1 < len(xs):
+                got.append(ctx.get(r.sig))
+            if "q" in events and 0 <= c - L - 1 < len(xs):
+                sats.append(ctx.get(events["q"]))
+    sim = Simulator(m)
+    sim.add_clock(1e-8)
+    sim.add_testbench(tb)
+    sim.run()
+    assert got == expected
+    if "q" in events:
+        assert sats == flags
+    else:
+        assert not any(flags)
+
+
+@pytest.mark.hdl
+@pytest.mark.parametrize("form", ["delayed", "other_signedness"])
+def test_pipeline_product_by_a_constant_operand_reads_it_as_its_format(form):
+    """PipeArith.mul takes the constant from the operand's own Const, read as the operand's format reads it:
+    a Const fed in at an earlier stage than the other operand (fx hands a delay register of it) and a Const
+    of unsigned bits in a signed format (fx hands a sign reinterpretation) both give the bit-true product,
+    by shifts and adds (raw k = -20480: 2 signed digits, one cycle)."""
+    from amaranth.hdl import Const as AConst
+
+    from hw.pipeline import PipeArith
+    fx, fk, fq = SQ(3, 15), SQ(2, 16), SQ(2, 10)
+    k_raw = -20480
+    m = Module()
+    valid, x = Signal(), Signal(signed(18))
+    ar = PipeArith(m, {"x": fx, "k": fk, "q": fq}, {}, valid, "lane")
+    with ar:
+        if form == "delayed":
+            k, xin, x_stage = ar.input(AConst(k_raw, signed(18)), "k", 0), ar.input(x, "x", 1), 1
+        else:
+            k, xin, x_stage = ar.input(AConst(k_raw & 0x3FFFF, unsigned(18)), "k", None), ar.input(x, "x", 0), 0
+        r = ar.mul(xin, k, "q")
+    assert "cell $mul" not in rtlil.convert(m, ports=[valid, x, r.sig])
+    assert r.stage == x_stage + 2
+    rng = np.random.default_rng(5)
+    xs = [fx.min_raw, fx.max_raw, 0, 1, -1] + [int(v) for v in rng.integers(fx.min_raw, fx.max_raw, 300, endpoint=True)]
+    expected = [int(mul(np.array([v]), fx, np.array([k_raw]), fk, fq, Saturations(), "q")[0]) for v in xs]
+    got, L = [], r.stage - x_stage
+
+    async def tb(ctx):
+        for c in range(len(xs) + L + 3):
+            ctx.set(valid, 1)
+            ctx.set(x, xs[c] if c < len(xs) else 0)
+            await ctx.tick()
+            if 0 <= c - L + 1 < len(xs):
+                got.append(ctx.get(r.sig))
+    sim = Simulator(m)
+    sim.add_clock(1e-8)
+    sim.add_testbench(tb)
+    sim.run()
+    assert got == expected

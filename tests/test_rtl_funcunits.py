@@ -30,8 +30,8 @@ from amaranth.sim import Simulator
 from golden.elements import DamperLaw
 from hw.datapath import phi_curve, psi_curve
 from hw.fixed import SQ, UQ, Saturations, shift_round
-from hw.funcunits import InverseTable, Rsqrt
-from hw.rtl_funcunits import InverseTableUnit, RsqrtUnit
+from hw.funcunits import InverseTable, Rsqrt, RsqrtTable
+from hw.rtl_funcunits import InverseTableUnit, RsqrtTableUnit, RsqrtUnit
 
 pytestmark = pytest.mark.hdl      # `make test-fast` leaves these out
 
@@ -177,6 +177,114 @@ def test_rsqrt_exhaustive_case_reaches_every_path():
     n = np.arange(1, 13)
     k = n + ((n - 8) & 1)
     assert (model.Y + ((k - 8) >> 1) - 8 < 0).any()
+
+
+# ================================================================================================ RsqrtTable
+
+def _check_rsqrt_table(model: RsqrtTable, x, idle=0.0, seed=0, expect_sat=None):
+    """RsqrtTableUnit against its model at the inputs x: values, saturation flags (total and per element)."""
+    dut = RsqrtTableUnit(model)
+    assert dut.latency == 10
+    sat = Saturations()
+    ref = model(x, sat)
+    hw = _simulate(dut, x, ("value", "saturated"), idle=idle, seed=seed)
+    bad = np.nonzero(hw["value"] != ref)[0]
+    assert bad.size == 0, (f"{bad.size} outputs differ, first x = {x[bad[:5]].tolist()}: "
+                           f"hw {hw['value'][bad[:5]].tolist()} model {ref[bad[:5]].tolist()}")
+    assert int(hw["saturated"].sum()) == sat.total
+    per = _per_element_counts(_rsqrt_count(model), x, 1)
+    bad = np.nonzero(hw["saturated"] != per)[0]
+    assert bad.size == 0, f"saturation flags differ at x = {x[bad[:5]].tolist()}"
+    if expect_sat is not None:                   # coverage: both saturated and unsaturated outputs
+        assert (0 < sat.total < len(x)) == expect_sat
+    return hw
+
+
+# exhaustive cases: (in_shape, out_shape, segments_log2, guard_bits); inputs = 2^in.width
+RSQRT_TABLE_EXHAUSTIVE = [
+    # 16384 inputs each: negative inputs and 0, saturating small inputs; 16 segments, and the presets'
+    # 1,024 (the first word's offset clamped to 2^(Y+1) - 1)
+    (SQ(6, 8), SQ(4, 10), 4, 2),
+    (SQ(6, 8), SQ(4, 10), 10, 4),
+    # 4096 inputs: unsigned; M = 10 < 13 = k_max (mantissa rounding and its clamp), left output shifts
+    (UQ(4, 8), UQ(2, 8), 3, 0),
+    # 4096 inputs: odd input fraction bits, one segment per octave (S = 2), 1 guard bit
+    (SQ(3, 9), SQ(6, 6), 2, 1),
+    # 256 inputs: negative input fraction bits (the raw LSB is 4)
+    (SQ(10, -2), UQ(1, 9), 5, 2),
+    # 256 inputs: M = S + 1, a 1-bit fraction (always 0 in the lower octave)
+    (UQ(4, 4), UQ(2, 4), 5, 0),
+    # 4 inputs each: 2-bit inputs
+    (UQ(2, 0), UQ(1, 7), 3, 2),
+    (SQ(2, 0), SQ(2, 6), 3, 2),
+]
+
+
+@pytest.mark.parametrize("ins, outs, S, guard", RSQRT_TABLE_EXHAUSTIVE,
+                         ids=[f"{a}-{b}-S{c}-guard{d}" for a, b, c, d in RSQRT_TABLE_EXHAUSTIVE])
+def test_rsqrt_table_exhaustive(ins, outs, S, guard):
+    model = RsqrtTable(ins, outs, segments_log2=S, guard_bits=guard)
+    x = np.arange(ins.min_raw, ins.max_raw + 1, dtype=np.int64)
+    _check_rsqrt_table(model, x, expect_sat=True)
+
+
+def test_rsqrt_table_exhaustive_cases_reach_every_path():
+    """Mantissa rounding and left output shifts (UQ(4, 8) -> UQ(2, 8)), F = 1 (UQ(4, 4) -> UQ(2, 4)), the
+    first word's offset at 2^(Y+1) - 1, the largest c0 - 2^Y the ROM holds."""
+    model = RsqrtTable(UQ(4, 8), UQ(2, 8), segments_log2=3, guard_bits=0)
+    assert model.k_max > model.M
+    n = np.arange(1, 13)
+    k = n + ((n - 8) & 1)
+    assert (model.Y + ((k - 8) >> 1) - 8 < 0).any()
+    assert RsqrtTable(UQ(4, 4), UQ(2, 4), segments_log2=5, guard_bits=0).F == 1
+    top = RsqrtTable(SQ(6, 8), SQ(4, 10), segments_log2=10, guard_bits=4)
+    assert top.c0[0] == (1 << (top.Y + 1)) - 1
+
+
+def _rsqrt_table_inputs(model: RsqrtTable, seed: int, n_random=3000):
+    """Extremes, powers of two and neighbours, the inputs around the output's saturation threshold, one
+    input in every table segment (at a random exponent), uniform and log-uniform random inputs."""
+    s = model.in_shape
+    S = model.S
+    rng = np.random.default_rng(seed)
+    Wn = s.max_raw.bit_length()
+    pw = np.int64(1) << np.arange(Wn, dtype=np.int64)
+    edge = int(round(2.0 ** s.f / model.out_shape.max_value ** 2))
+    # x with bit length b, k = b (b - fi even), has the mantissa x 2^-b: in segment [a, a + h) of octave o
+    # when x is in [a 2^b, (a + h) 2^b), which holds an integer when b >= S + 1
+    bs = [b for b in range(S + 1, Wn + 1) if (b - s.f) % 2 == 0]
+    segs = []
+    for addr in range(1 << S):
+        o, j = addr >> (S - 1), addr & ((1 << (S - 1)) - 1)
+        q = S + 1 - o                                   # a = n 2^-q, h = 2^-q
+        b = int(rng.choice(bs))
+        segs.append((((1 << (S - 1)) + j) << (b - q)) + int(rng.integers(0, 1 << (b - q))))
+    vals = [s.min_raw, s.min_raw + 1, -2, -1, 0, 1, 2, 3, s.max_raw - 1, s.max_raw,
+            *pw, *(pw + 1), *(pw - 1), *range(edge - 16, edge + 17), *segs,
+            *rng.integers(s.min_raw, s.max_raw, n_random // 3, endpoint=True),
+            *np.exp2(rng.uniform(0, Wn, n_random)).astype(np.int64)]          # log-uniform positive
+    return _shuffle(_inputs(s, vals), seed)
+
+
+# the formats of other scenes' 1/sqrt units under the narrow and medium presets (press-2d-rheological's
+# are in test_scene_units): dense inputs, every table word read
+RSQRT_TABLE_SCENES = [
+    (SQ(0, 18), SQ(7, 11)),        # press-3d-rheological inv_l
+    (SQ(-6, 24), SQ(9, 9)),        # press-3d-rheological tinv2
+    (SQ(-7, 25), SQ(11, 7)),       # friction-3d-mu03 cinv2
+    (SQ(-33, 51), SQ(32, -14)),    # friction-3d-mu03 finv
+]
+
+
+@pytest.mark.parametrize("ins, outs", RSQRT_TABLE_SCENES, ids=[f"{a}-{b}" for a, b in RSQRT_TABLE_SCENES])
+def test_rsqrt_table_scene_formats(ins, outs):
+    from hw.formats import FORMAT_PRESETS
+    S = FORMAT_PRESETS["narrow"].rsqrt_table_segments_log2
+    assert S == FORMAT_PRESETS["medium"].rsqrt_table_segments_log2 == 10
+    model = RsqrtTable(ins, outs, segments_log2=S)
+    x = _rsqrt_table_inputs(model, seed=ins.f)
+    assert len(x) > 3000
+    _check_rsqrt_table(model, x, idle=0.1, seed=ins.f)
 
 
 # ================================================================================================ inverse tables
@@ -339,7 +447,11 @@ def _inverse_inputs(model: InverseTable, seed: int, n_random=10000):
 @pytest.mark.parametrize("preset", ["narrow", "medium", "wide"])
 def test_scene_units(scene_units, preset):
     units = scene_units[preset]
-    assert any(isinstance(u, Rsqrt) for u in units.values())
+    # 1/sqrt by table (RsqrtTable) under narrow and medium, by Newton (Rsqrt) under wide (hw/formats.py
+    # rsqrt_table_segments_log2, hw/bittrue.py function_units)
+    rsqrt, other = (Rsqrt, RsqrtTable) if preset == "wide" else (RsqrtTable, Rsqrt)
+    assert any(isinstance(u, rsqrt) for u in units.values())
+    assert not any(isinstance(u, other) for u in units.values())
     tables = {name: u for name, u in units.items() if isinstance(u, InverseTable)}
     assert set(tables) == {"phi", "psi"}
     assert len(tables["phi"].out_shapes) == 2 and len(tables["psi"].out_shapes) == 1
@@ -347,6 +459,9 @@ def test_scene_units(scene_units, preset):
         if isinstance(model, Rsqrt):
             x = _rsqrt_inputs(model, seed=100 + k)
             _check_rsqrt(model, x, idle=0.1, seed=k)
+        elif isinstance(model, RsqrtTable):
+            x = _rsqrt_table_inputs(model, seed=100 + k)
+            _check_rsqrt_table(model, x, idle=0.1, seed=k)
         else:
             x = _inverse_inputs(model, seed=200 + k)
             assert len(x) > 10000
@@ -460,3 +575,68 @@ def test_signatures_and_conversion():
         ports = [dut.i.valid, dut.i.payload, dut.o.valid, dut.o.payload.as_value()]
         text = rtlil.convert(dut, ports=ports)
         assert "$mem" in text
+
+
+@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
+def test_rsqrt_table_unit_interface():
+    """RsqrtTableUnit: RsqrtUnit's stream signature, latency 10, its own model type only; converts to
+    RTLIL with its ROM."""
+    md = RsqrtTable(SQ(6, 8), UQ(4, 10), segments_log2=6)
+    u = RsqrtTableUnit(md)
+    assert u.latency == 10
+    assert u.i.payload.shape() == signed(14)
+    assert u.o.payload.value.shape() == unsigned(14) and u.o.payload.saturated.shape() == unsigned(1)
+    assert u.signature.members["i"].signature == RsqrtUnit(Rsqrt(SQ(6, 8), UQ(4, 10), seed_bits=6)).signature.members["i"].signature
+    text = rtlil.convert(u, ports=[u.i.valid, u.i.payload, u.o.valid, u.o.payload.as_value()])
+    assert "$mem" in text and text.count("cell $mul") == 1
+    for bad in (Rsqrt(SQ(6, 8), UQ(4, 10), seed_bits=6), None, "rsqrt"):
+        with pytest.raises(TypeError, match="RsqrtTableUnit needs a hw.funcunits.RsqrtTable model"):
+            RsqrtTableUnit(bad)
+    with pytest.raises(TypeError, match="RsqrtUnit needs a hw.funcunits.Rsqrt model"):
+        RsqrtUnit(md)
+    gc.collect()
+
+
+@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
+def test_units_declare_their_memories():
+    """Every unit's `memories` (known at construction, before elaboration: what the core's schedule facts
+    and the manifest list) are the Memory submodules it elaborates, by name, depth and width."""
+    from amaranth.hdl import Shape as AShape
+    from amaranth.lib.memory import Memory
+    phi = InverseTable(UQ(8, 4), (SQ(6, 6), UQ(5, 7)), _curve("phi", (0.0, 2.0, 60.0, 20.0, 36.0)), segments_log2=4)
+    for dut in (RsqrtUnit(Rsqrt(SQ(6, 8), UQ(4, 10), seed_bits=6)),
+                RsqrtTableUnit(RsqrtTable(SQ(6, 8), UQ(4, 10), segments_log2=6)),
+                RsqrtTableUnit(RsqrtTable(SQ(10, 8), SQ(4, 14), segments_log2=10)),
+                InverseTableUnit(phi)):
+        declared = [dict(mem) for mem in dut.memories]
+        m = dut.elaborate(None)
+        built = [{"name": name, "depth": sub.depth, "width": AShape.cast(sub.shape).width}
+                 for name, (sub, _) in m._named_submodules.items() if isinstance(sub, Memory)]
+        assert declared == built and built, type(dut).__name__
+    del dut, m
+    gc.collect()          # the units elaborated by hand warn here, under this test's filter
+
+
+@pytest.mark.parametrize("kind", ["table", "newton"])
+def test_pipeline_rsqrt_picks_the_unit_of_its_model(kind):
+    """PipeArith.rsqrt builds the unit that implements the bit-true model it is given (RsqrtTableUnit for
+    an RsqrtTable, RsqrtUnit for an Rsqrt): result valid at the operand's stage + that unit's latency,
+    bit for bit the model's, saturations counted under the quantity."""
+    from hw.pipeline import PipeArith
+    ins, outs = SQ(6, 8), SQ(4, 10)
+    model = (RsqrtTable(ins, outs, segments_log2=6, name="inv_l") if kind == "table"
+             else Rsqrt(ins, outs, seed_bits=6, name="inv_l"))
+    L = 10 if kind == "table" else 16
+    m = Module()
+    valid, x = Signal(), Signal(signed(ins.width))
+    ar = PipeArith(m, {"l2": ins, "inv_l": outs}, {"inv_l": model}, valid, "lane")
+    with ar:
+        r = ar.rsqrt(ar.input(x, "l2", 0), "inv_l")
+        events = dict(ar.saturation_events())
+    assert r.stage == L and r.q == "inv_l" and set(events) == {"inv_l"}
+    rom = ("table_rom", 1 << 6) if kind == "table" else ("seed_rom", len(model.seed_table))
+    assert [(mem["name"].split(".")[-1], mem["depth"]) for mem in ar.memories] == [rom]   # the lane reports it
+    xs = _shuffle(np.arange(ins.min_raw, ins.max_raw + 1, 5), 7)
+    got = _run_lane(m, x, valid, xs, {"v": (r.sig, L), "sat": (events["inv_l"], L + 2)})
+    assert np.array_equal(got["v"], model(xs))
+    assert np.array_equal(got["sat"], _per_element_counts(_rsqrt_count(model), xs, 1))
