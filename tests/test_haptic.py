@@ -522,7 +522,10 @@ def test_haptic_on_the_cpu_backend_writes_golden_run(haptic_run):
     out = tmp / "cpu.npz"
     proc = rheo("haptic", "poke-2d-viscoelastic", "--trajectory", tmp / "t.csv", "--every", 10, "--backend", "cpu",
                 "--out", out)
-    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    # nothing on stderr but the progress bar, which shows when the first sample compiles the cpu backend
+    # (a fresh machine: about a minute)
+    noise = [ln for ln in proc.stderr.replace("\r", "\n").splitlines() if ln.strip() and "sample]" not in ln]
+    assert proc.returncode == 0 and noise == [], proc.stderr
     assert "120 device samples" in proc.stdout and "on cpu" in proc.stdout
     with np.load(golden_out) as g, np.load(out) as c:
         assert str(c["backend"]) == "cpu" and "probe_force_raw" not in c.files
