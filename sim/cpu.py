@@ -56,7 +56,7 @@ try:
 except ImportError as exc:          # numba is a dependency in pyproject.toml; say how to get it
     raise ImportError("the cpu backend needs Numba: pip install -e . (or pip install numba)") from exc
 
-from golden.model import Stepper
+from golden.model import Golden, Stepper
 from golden.system import State, System, component_major
 
 def _jit(**flags):
@@ -1082,16 +1082,10 @@ class Cpu(Stepper):
     def step(self, st: State) -> None:
         self.advance(st, 1)
 
-    # the haptic probe, as golden.model.Golden's
-    def hold_probe(self, st: State, p) -> None:
-        st.probe.driven = True
-        st.probe.hold(self.system.probe, p, self.system.dt)
-
-    def probe_reading(self, st: State) -> tuple:
-        return st.probe.force.copy(), st.probe.contacts
-
-    def probe_position(self, st: State):
-        return None if st.probe is None else st.probe.p.copy()
+    # the haptic probe: golden's own methods (they touch only the state's ProbeState and the system)
+    hold_probe = Golden.hold_probe
+    probe_reading = Golden.probe_reading
+    probe_position = Golden.probe_position
 
     def forces(self, st: State, t: float):
         """Total force (N, D) and the elements' adot at time t (for tests and tools); `flagged` then holds the
