@@ -65,11 +65,13 @@ def _jit(**flags):
 
 
 SOLVE_RTOL, SOLVE_ATOL, SOLVE_MAX_ITER = 1e-12, 1e-300, 100   # golden/elements.py's
-# Below this many elements one thread is as fast as two or faster on this 2-core machine (the benchmark
-# square, 1 thread against 2, us per step, median of 9 interleaved rounds, machine shared with other jobs:
-# 1e3 elements 20.5 against 27.3, 3e3 35.8 against 36.1, 1e4 104 against 75, 3e4 321 against 178, 1e5 1393
-# against 590)
-PARALLEL_MIN_ELEMENTS = 5_000
+# Below this many elements one thread (2-core machine): two pay on the 2D square from 1e3 elements but lose
+# on the 3D press of 987 and tie on small scenes. Idle machine,
+# `rheo bench --backend cpu --sizes 1000 3000 10000 100000 --json` (steps/s, 1 thread against 2): square
+# 1e3 90,046 against 120,238, 3e3 46,373 / 67,473, 1e4 18,381 / 26,349, 1e5 1,546 / 3,494; `--scene`:
+# press-2d-rheological (134 elements) 171,145 / 166,050, press-3d-plastic (987) 16,105 / 11,949. Two
+# threads pay everywhere above; on a loaded machine (CI) a waiting thread costs more.
+PARALLEL_MIN_ELEMENTS = 2_000
 CHUNKS_PER_THREAD = 1       # node chunks per thread (2 per thread: 31.3, 40.4, 71.5, 197, 629 us above)
 BLOCK = np.uint64(1024)     # elements per block of the element passes (their scratch stays in L1)
 
