@@ -205,6 +205,10 @@ def _job(system, out: Path, shown, preset, hdl_steps, synth, place_and_route, si
         log(f"      {r['luts']} LUTs, {r['flip_flops']} FFs, {r['mult18x18']} multipliers, {r['block_rams']} "
             f"block RAMs{fmax} -> {shown(out / 'synth' / 'report.md')} (cached in {cache})")
         summary["synthesis"] = {k: r.get(k) for k in ("luts", "flip_flops", "mult18x18", "block_rams", "fmax_mhz")}
+        if r.get("fmax_mhz") and summary["report"].get(synth_preset) is not None:   # the report's FPGA point at the measured clock
+            report.measured_clock(out / "report", synth_preset, r["fmax_mhz"],
+                                  f"measured Fmax (place and route of this core, {cache})")
+            log(f"      report: the FPGA {synth_preset} point now at the measured {r['fmax_mhz']:.1f} MHz")
         seconds["synthesis_wait"] = time.perf_counter() - t
 
     summary["wall_s"] = time.perf_counter() - t_job

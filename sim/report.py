@@ -8,8 +8,10 @@
 - Discretisation error: the golden model at dt, 2 dt and 4 dt against a converged reference, the golden
   model at dt / 16 (dt / 4 when that would exceed `max_ref_steps` steps; the summary says which).
 - Run time per simulated second: golden and bit-true measured on this machine; the FPGA core of each
-  preset from its schedule (cycles per step of the elaborated core, hw/core.py `schedule`) at a clock
-  (`clock_mhz`: an assumption unless taken from `rheo synth`'s measured Fmax; the summary says which).
+  preset from its schedule (cycles per step of the core `rheo verilog` builds) at a clock per preset
+  (`clock_mhz`: an assumption unless taken from `rheo synth`'s measured Fmax; `measured_clock` puts a
+  place-and-route result in afterwards, as `rheo run --pnr` does for the preset it synthesises; the
+  summary says which, per preset).
 Writes DIR/error.csv, DIR/summary.json, DIR/error_vs_time.png and DIR/cost_vs_accuracy.png.
 """
 from __future__ import annotations
@@ -59,7 +61,8 @@ def build(system: System, out_dir, presets=("narrow", "medium", "wide"), max_ref
     sysn = dataclasses.replace(system, n_steps=n)
     summary = {"scene": system.name, "dt": system.dt, "duration": T, "object_size_m": size, "frames": n // every + 1,
                "quantisation": {}, "discretisation": {}, "run_time_per_simulated_second": {},
-               "fpga": {"clock_mhz": clock_mhz, "clock_source": clock_source, "cycles_per_step": {}}}
+               "fpga": {"clock_mhz": clock_mhz, "clock_source": clock_source, "cycles_per_step": {},
+                        "clock_mhz_by_preset": {}, "clock_source_by_preset": {}}}
     cols = {}
 
     log(f"golden at dt = {system.dt:g} s ({n} steps)")
@@ -95,7 +98,7 @@ def build(system: System, out_dir, presets=("narrow", "medium", "wide"), max_ref
         summary["run_time_per_simulated_second"][f"fixed-{preset}"] = wall / T
         _, cycles = cycles_per_step(bt)          # the core `rheo verilog` builds (--core auto)
         summary["fpga"]["cycles_per_step"][preset] = cycles
-        summary["run_time_per_simulated_second"][f"fpga-{preset}"] = cycles / (clock_mhz * 1e6 * system.dt)
+        _set_clock(summary, preset, clock_mhz, clock_source)
 
     from sim.cpu import Cpu
     log("cpu backend (compiled golden physics) at dt")
@@ -138,6 +141,33 @@ def build(system: System, out_dir, presets=("narrow", "medium", "wide"), max_ref
     return summary
 
 
+def _set_clock(summary: dict, preset: str, mhz: float, source: str) -> None:
+    """The FPGA point of `preset`: its cycles per step at `mhz` (the summary keeps the clock and its source)."""
+    fp = summary["fpga"]
+    fp["clock_mhz_by_preset"][preset], fp["clock_source_by_preset"][preset] = float(mhz), source
+    summary["run_time_per_simulated_second"][f"fpga-{preset}"] = (
+        fp["cycles_per_step"][preset] / (float(mhz) * 1e6 * summary["dt"]))
+
+
+def measured_clock(out_dir, preset: str, fmax_mhz: float, source: str) -> dict:
+    """Put a measured Fmax (place and route of `preset`'s core) into the report written in out_dir: its
+    summary.json and cost_vs_accuracy.png are rewritten with that preset's FPGA point at the new clock.
+    Returns the new summary."""
+    out = Path(out_dir)
+    summary = json.loads((out / "summary.json").read_text())
+    if preset not in summary["fpga"]["cycles_per_step"]:
+        raise KeyError(f"the report in {out} has no FPGA point for preset {preset!r}")
+    _set_clock(summary, preset, fmax_mhz, source)
+    with open(out / "error.csv", newline="") as f:
+        rows = list(csv.reader(f))
+    cols = {k: np.array([float(r[i]) for r in rows[1:]]) for i, k in enumerate(rows[0])}
+    tmp = out / ".summary.json.tmp"
+    tmp.write_text(json.dumps(summary, indent=2))
+    tmp.replace(out / "summary.json")
+    _plots(out, cols, summary)
+    return summary
+
+
 def _plots(out: Path, cols: dict, summary: dict) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -160,13 +190,14 @@ def _plots(out: Path, cols: dict, summary: dict) -> None:
     fig, ax = plt.subplots(figsize=(6, 4.5))
     floor = 1e-11
     rt = summary["run_time_per_simulated_second"]
-    clock = summary["fpga"]["clock_mhz"]
+    clocks = summary["fpga"]["clock_mhz_by_preset"]
     for preset, q in summary["quantisation"].items():
         if "max_relative" in q:
             err = max(q["max_relative"], floor)
             line, = ax.loglog(rt[f"fixed-{preset}"], err, "o", label=f"bit-true {preset} (NumPy)")
             ax.loglog(rt[f"fpga-{preset}"], err, "*", ms=11, color=line.get_color(),
-                      label=f"FPGA {preset} ({summary['fpga']['cycles_per_step'][preset]} cycles/step, {clock:g} MHz)")
+                      label=f"FPGA {preset} ({summary['fpga']['cycles_per_step'][preset]} cycles/step, "
+                            f"{clocks[preset]:.4g} MHz)")
     for label, d in summary["discretisation"].items():
         if isinstance(d, dict) and "max_relative" in d:
             ax.loglog(d["run_time_per_simulated_second"], max(d["max_relative"], floor), "s", label=f"golden {label}")

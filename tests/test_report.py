@@ -52,3 +52,15 @@ def test_report_orders_presets_and_time_steps(tmp_path):
     assert len(rows) == s["frames"]
     assert float(rows[0]["t"]) == 0.0 and float(rows[-1]["t"]) > 0.29
     assert abs(max(float(row["quant_max_rel_wide"]) for row in rows) - q["wide"]) <= 1e-8 * q["wide"]  # CSV: 9 digits
+    # a measured Fmax (rheo run --pnr) moves that preset's FPGA point only, and the plot is redrawn
+    from sim.report import measured_clock
+    png = (out / "cost_vs_accuracy.png").read_bytes()
+    measured_clock(out, "medium", 87.5, "measured Fmax (test)")
+    s2 = json.loads((out / "summary.json").read_text())
+    rt2 = s2["run_time_per_simulated_second"]
+    cyc_m = s["fpga"]["cycles_per_step"]["medium"]
+    assert abs(rt2["fpga-medium"] - cyc_m / (87.5e6 * s["dt"])) <= 1e-12 * rt2["fpga-medium"]
+    assert rt2["fpga-wide"] == rt["fpga-wide"] and rt2["fpga-narrow"] == rt["fpga-narrow"]
+    assert s2["fpga"]["clock_source_by_preset"] == {"narrow": "assumed (--clock-mhz)", "medium": "measured Fmax (test)",
+                                                    "wide": "assumed (--clock-mhz)"}
+    assert (out / "cost_vs_accuracy.png").read_bytes() != png

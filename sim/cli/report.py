@@ -55,6 +55,7 @@ def run(args) -> int:
     print(f"  wall seconds per simulated second: golden {rt['golden']:.3g}, cpu backend {rt['cpu']:.3g}" + "".join(
         f", bit-true {p} {rt['fixed-' + p]:.3g}" for p in fp["cycles_per_step"]))
     for p, c in fp["cycles_per_step"].items():
-        print(f"  FPGA {p:7s}: {c} cycles/step at {fp['clock_mhz']:g} MHz ({fp['clock_source']}): "
+        print(f"  FPGA {p:7s}: {c} cycles/step at {fp['clock_mhz_by_preset'][p]:g} MHz "
+              f"({fp['clock_source_by_preset'][p]}): "
               f"{rt['fpga-' + p]:.3g} s per simulated second")
     return 0
