@@ -1,0 +1,139 @@
+"""The streaming core's probe port (hw/stream/probeport.py) equals the bit-true model bit for bit, in
+Amaranth's simulator: a poke trajectory streamed through `probe_in` with random gaps between samples and
+random back-pressure on `force_out`; every force word and contact count, and the node and element state
+at the end, against `BitTrue` (hold_probe, k steps, probe_raw); the measured latency from each sample's
+handshake to its force against the core's `probe_latency` (the manifest's). Verilog on Icarus and
+Verilator (the built-in poke-2d-viscoelastic there): tests/test_stream_hdl.py.
+
+Amaranth's simulator runs the built-in poke scene at about 130 cycles a second (12 samples of 4,000
+cycles: 6 minutes), so this test takes tests/scenes/poke-tiny.toml (15 nodes, k = 4, 139 cycles a step at
+P = Q = 2), poked between two top nodes of different node lanes.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from amaranth.sim import Simulator
+
+from golden.scene import load_scene
+from hw.bittrue import BitTrue
+from hw.datapath import NotSupported
+from hw.stream import build_core, resolve_core
+from hw.stream.nodeword import pack_ints, unpack_ints
+from sim.host import HostDriver
+from sim.hwsim import AmaranthBus
+
+TINY = str(Path(__file__).resolve().parent / "scenes" / "poke-tiny.toml")
+
+
+def probe_model(scene, preset="wide", range_steps=None):
+    """The bit-true model of a poke scene, formats from its design poke (`range_steps` of it)."""
+    return BitTrue(load_scene(scene), preset, range_steps=range_steps)
+
+
+def trajectory(bt, n, down):
+    """`n` device samples (metres) straight down from the scene's initial probe position, `down` m apart."""
+    p0 = bt.system.probe.position
+    return [p0 - down * (s + 1) * np.eye(bt.system.dim)[-1] for s in range(n)]
+
+
+def expected(bt, positions):
+    """Per sample: the x words the host sends, then (force words, contacts) after its k steps; the end state."""
+    st = bt.initial_state()
+    words, outs = [], []
+    for p in positions:
+        bt.hold_probe(st, p)
+        words.append([int(v) for v in st.probe.P])
+        for _ in range(bt.params.probe["k"]):
+            bt.step(st)
+        outs.append(([int(v) for v in bt.probe_raw(st)], st.probe.contacts))
+    return words, outs, st
+
+
+def stream_samples(core, words, seed, read_state=True):
+    """Amaranth's simulator: load the initial state, stream `words` through probe_in with random gaps,
+    take force_out under random back-pressure. Returns ([(force words, contacts)], latencies, end state)."""
+    rng = np.random.default_rng(seed)
+    cfg, pp = core.cfg, core.probe
+    D = cfg.dim
+    sim = Simulator(core)
+    sim.add_clock(1e-8)
+    result = {}
+
+    async def bench(ctx):
+        drv = HostDriver.for_map(cfg.host_map, core.cycles_per_step, AmaranthBus(ctx, core.host))
+        init = cfg.init
+        await drv.load(init["X"], init["U"], init["A"], 0)
+        i_in, gap, t = 0, int(rng.integers(0, 8)), 0
+        hs, outs, lat = [], [], []
+        seen = False                       # force_out.valid seen for the sample in flight
+        pi, fo = core.probe_in, core.force_out
+        while len(outs) < len(words):
+            if i_in < len(words) and gap == 0:
+                ctx.set(pi.valid, 1)
+                ctx.set(pi.payload, pack_ints(words[i_in], pp.x_bits))
+            else:
+                ctx.set(pi.valid, 0)
+            ready = int(rng.random() < 0.3)
+            ctx.set(fo.ready, ready)
+            if ctx.get(pi.valid) and ctx.get(pi.ready):
+                hs.append(t)
+                i_in += 1
+                gap = int(rng.integers(0, 40))
+            elif gap:
+                gap -= 1
+            if ctx.get(fo.valid):
+                if not seen:
+                    lat.append(t - hs[len(outs)])
+                    seen = True
+                if ready:
+                    w = int(ctx.get(fo.payload))
+                    F = unpack_ints(w, D, pp.f_bits)
+                    outs.append((F, w >> (D * pp.f_bits)))
+                    seen = False
+            await ctx.tick()
+            t += 1
+        ctx.set(pi.valid, 0)
+        result.update(outs=outs, lat=lat, state=await drv.read_state() if read_state else None)
+
+    sim.add_testbench(bench)
+    sim.run()
+    return result["outs"], result["lat"], result["state"]
+
+
+@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
+def test_probe_port_streams_the_bit_true_forces():
+    """P = Q = 2 (15 nodes: the last group is short): 7 samples 0.3 mm apart, the last ones touching two
+    nodes of different node lanes (their forces summed across lanes)."""
+    bt = probe_model(TINY)
+    words, want, st = expected(bt, trajectory(bt, 7, 3e-4))
+    assert want[0][1] == 0 and want[-1][1] == 2          # the trajectory touches two nodes
+    sat = bt.sat.total
+    core = build_core(bt, 2, 2, "stream")
+    check_stream(bt, core, words, want, st, sat, seed=16)
+
+
+def check_stream(bt, core, words, want, st, sat, seed):
+    """stream_samples against the bit-true model's forces, end state and saturations; latency = manifest."""
+    outs, lat, (X, U, A, step, hw_sat, _) = stream_samples(core, words, seed=seed)
+    for n, (got, exp) in enumerate(zip(outs, want)):
+        assert got == exp, f"sample {n}: force words, contacts {got}, bit-true {exp}"
+    assert step == st.step
+    for k in range(len(X)):
+        assert np.array_equal(X[k], st.X[k]), f"x{k}"
+        assert np.array_equal(U[k], st.U[k]), f"u{k}"
+    assert np.array_equal(A, st.A)
+    assert hw_sat == sat
+    assert lat == [core.probe_latency] * len(words), (lat, core.probe_latency)
+
+
+def test_probe_scenes_go_to_the_streaming_core():
+    from hw.datapath import Params
+    from hw.units import HardwareUnits
+    system = load_scene("poke-2d-viscoelastic")
+    params = Params.of(system, HardwareUnits.of(system))
+    assert resolve_core(params, "auto") == resolve_core(params, "stream") == "stream"
+    with pytest.raises(NotSupported, match="phased core has no probe port"):
+        resolve_core(params, "phased")
