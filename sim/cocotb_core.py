@@ -9,6 +9,11 @@ happens on the host side, on the decoded words (sim/host.py).
 
 Optional: `reset_after` > 0 starts a run and asserts reset after that many cycles, checks the core
 is idle with its step counter at 0, then carries on with the job (a reset in the middle of a run).
+With `probe_words` (a scene with a [probe]: one row of x words per device sample), after the frames the
+samples go through the probe port (`probe_in`) with seeded random gaps while `force_out` sees random
+back-pressure; each force's words and contact count and its latency in cycles (from the sample's
+handshake cycle to the first cycle its force is valid, from the simulation time) join the result, and
+the state is read back once more at the end.
 """
 from __future__ import annotations
 
@@ -18,7 +23,8 @@ import time
 import cocotb
 import numpy as np
 from cocotb.clock import Clock
-from cocotb.triggers import ClockCycles, FallingEdge
+from cocotb.triggers import ClockCycles, FallingEdge, RisingEdge
+from cocotb.utils import get_sim_time
 
 from hw.hostmap import ID_WORD, STATUS_BUSY, Reg
 from sim.host import HostDriver
@@ -60,8 +66,9 @@ class CocotbBus:
 
 async def _reset(dut):
     dut.rst.value = 1
-    for name in ("host__addr", "host__w_data", "host__w_en", "host__r_en"):
-        getattr(dut, name).value = 0
+    for name in ("host__addr", "host__w_data", "host__w_en", "host__r_en", "probe_in__valid", "force_out__ready"):
+        if hasattr(dut, name):                            # the probe port's: scenes with a [probe]
+            getattr(dut, name).value = 0
     await ClockCycles(dut.clk, 2)
     await FallingEdge(dut.clk)
     dut.rst.value = 0
@@ -104,6 +111,50 @@ async def run_job(dut):
     for n in job["frames"]:
         cycles.append(await drv.run(int(n)))
         reads.append(await drv.read_raw())
+    probe = {}
+    if "probe_words" in job:
+        probe = await stream_probe(dut, job)
+        reads.append(await drv.read_raw())
     wall = time.perf_counter() - t0
     np.savez(os.environ["RHEO_RESULT"], reads=np.array(reads, np.int64), cycles=np.array(cycles, np.int64),
-             wall=wall)
+             wall=wall, **probe)
+
+
+async def stream_probe(dut, job) -> dict:
+    """The probe port under random gaps and back-pressure (seed `probe_seed`): forces, contacts, latencies."""
+    from hw.stream.nodeword import pack_ints, unpack_ints
+    rng = np.random.default_rng(int(job["probe_seed"]))
+    words = job["probe_words"]
+    D, xb, fb = words.shape[1], int(job["probe_x_bits"]), int(job["probe_f_bits"])
+    period = 10
+    now = lambda: get_sim_time("ns")
+    forces, contacts, latency = [], [], []
+    dut.force_out__ready.value = 0
+    for row in words:
+        gap = int(rng.integers(0, 40))
+        if gap:
+            await ClockCycles(dut.clk, gap, rising=False)
+        dut.probe_in__payload.value = pack_ints(row, xb)
+        dut.probe_in__valid.value = 1
+        while not int(dut.probe_in__ready.value):
+            await FallingEdge(dut.clk)
+        t_in = now()                          # taken at the next rising edge
+        await FallingEdge(dut.clk)
+        dut.probe_in__valid.value = 0
+        if not int(dut.force_out__valid.value):
+            await RisingEdge(dut.force_out__valid)
+            await FallingEdge(dut.clk)
+        latency.append(int(round((now() - t_in) / period)))
+        while True:                           # random back-pressure: the force waits until taken
+            assert int(dut.force_out__valid.value), "force_out fell without a handshake"
+            w = int(dut.force_out__payload.value)
+            ready = int(rng.random() < 0.3)
+            dut.force_out__ready.value = ready
+            await FallingEdge(dut.clk)
+            if ready:
+                break
+        dut.force_out__ready.value = 0
+        forces.append(unpack_ints(w, D, fb))
+        contacts.append(w >> (D * fb))
+    return {"forces": np.array(forces, np.int64), "contacts": np.array(contacts, np.int64),
+            "latency": np.array(latency, np.int64)}

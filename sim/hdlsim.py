@@ -53,9 +53,12 @@ def emit_core(bt: BitTrue, lanes=1, node_lanes=1, root: Path | None = None, core
 
 
 def run_job(simulator: str, core_dir: Path, drv: HostDriver, load_words, frames, reset_after: int = 0,
-            timeout_s: float | None = None, progress=None) -> dict:
+            timeout_s: float | None = None, progress=None, probe: dict | None = None) -> dict:
     """One cocotb run: load, run each frame's steps, read back; returns decoded frames and cycles.
-    `progress(done, total)` hears the simulated cycles while the simulation runs (polled twice a second)."""
+    `progress(done, total)` hears the simulated cycles while the simulation runs (polled twice a second).
+    `probe` (a core with a probe port): {"words": (S, D) x words, "x_bits", "f_bits", "seed"}: the samples
+    are then streamed through the port (sim/cocotb_core.py) and "forces", "contacts", "latency" returned,
+    with the state read back after them as the last frame."""
     from .simulators import run_cocotb
     if simulator not in SIMULATORS:
         raise BadArgument(f"unknown simulator '{simulator}' (known: {', '.join(SIMULATORS)})")
@@ -63,8 +66,11 @@ def run_job(simulator: str, core_dir: Path, drv: HostDriver, load_words, frames,
         job = Path(tmp) / "job.npz"
         result = Path(tmp) / "result.npz"
         progress_file = Path(tmp) / "progress"
+        extra = {} if probe is None else {
+            "probe_words": np.array(probe["words"], np.int64).reshape(len(probe["words"]), -1),
+            "probe_x_bits": probe["x_bits"], "probe_f_bits": probe["f_bits"], "probe_seed": probe["seed"]}
         np.savez(job, **drv.to_job(), load_words=np.array(load_words, np.int64),
-                 frames=np.array(frames, np.int64), reset_after=reset_after)
+                 frames=np.array(frames, np.int64), reset_after=reset_after, **extra)
         env = {"RHEO_JOB": str(job), "RHEO_RESULT": str(result),
                "PYTHONPATH": os.pathsep.join([str(SIM_DIR.parent), os.environ.get("PYTHONPATH", "")])}
         if progress is not None:
@@ -75,8 +81,12 @@ def run_job(simulator: str, core_dir: Path, drv: HostDriver, load_words, frames,
                        test_module="sim.cocotb_core", test_dir=SIM_DIR.parent, build_dir=core_dir / simulator,
                        extra_env=env, timeout_s=timeout_s)
         res = np.load(result)
-        return {"frames": [drv.decode(r) for r in res["reads"]], "cycles": res["cycles"].tolist(),
-                "wall_s": float(res["wall"])}
+        out = {"frames": [drv.decode(r) for r in res["reads"]], "cycles": res["cycles"].tolist(),
+               "wall_s": float(res["wall"])}
+        for key in ("forces", "contacts", "latency"):
+            if key in res:
+                out[key] = res[key].tolist()
+        return out
 
 
 @contextlib.contextmanager

@@ -11,6 +11,7 @@ P = Q = 2), poked between two top nodes of different node lanes.
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -137,3 +138,43 @@ def test_probe_scenes_go_to_the_streaming_core():
     assert resolve_core(params, "auto") == resolve_core(params, "stream") == "stream"
     with pytest.raises(NotSupported, match="phased core has no probe port"):
         resolve_core(params, "phased")
+
+
+@pytest.fixture
+def fast_verilator_builds(monkeypatch):
+    if "OPT_FAST" not in os.environ.get("MAKEFLAGS", ""):
+        monkeypatch.setenv("MAKEFLAGS", (os.environ.get("MAKEFLAGS", "") + " OPT_FAST=-O0 OPT_SLOW=-O0 OPT_GLOBAL=-O0").strip())
+
+
+def check_verilog(simulator, scene, samples, down, P, Q, seed, range_steps=None):
+    """The emitted Verilog (`rheo verilog --core stream`) on a simulator through cocotb (sim/cocotb_core.py):
+    the same proof as check_stream, the latency against the manifest's."""
+    from sim.hdlsim import emit_core, run_job
+    bt = probe_model(scene, range_steps=range_steps)
+    words, want, st = expected(bt, trajectory(bt, samples, down))
+    assert want[0][1] == 0 and want[-1][1] > 0
+    core_dir, man, drv = emit_core(bt, P, Q, core="stream")
+    pm = man["probe_port"]
+    x_bits, f_bits = bt.formats["x"].width, bt.formats["fprobe"].width
+    init = bt.initial_state()
+    out = run_job(simulator, core_dir, drv, drv.load_words(init.X, init.U, init.A, 0), [],
+                  probe={"words": words, "x_bits": x_bits, "f_bits": f_bits, "seed": seed}, timeout_s=1800)
+    got = [(list(f), c) for f, c in zip(out["forces"], out["contacts"])]
+    for n, (g, e) in enumerate(zip(got, want)):
+        assert g == (list(e[0]), e[1]), f"{simulator}: sample {n}: {g}, bit-true {e}"
+    assert len(got) == len(want)
+    X, U, A, step, sat, _ = out["frames"][-1]
+    assert step == st.step
+    for k in range(bt.system.dim):
+        assert np.array_equal(X[k], st.X[k]), f"{simulator}: x{k}"
+        assert np.array_equal(U[k], st.U[k]), f"{simulator}: u{k}"
+    assert np.array_equal(A, st.A)
+    assert sat == bt.sat.total
+    assert out["latency"] == [pm["latency_cycles"]] * samples, (out["latency"], pm["latency_cycles"])
+    return pm
+
+
+@pytest.mark.hdl
+@pytest.mark.parametrize("simulator", ["icarus", "verilator"])
+def test_probe_port_verilog(simulator, fast_verilator_builds):
+    check_verilog(simulator, TINY, 7, 3e-4, 2, 2, seed=7)
