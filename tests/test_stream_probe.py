@@ -178,3 +178,11 @@ def check_verilog(simulator, scene, samples, down, P, Q, seed, range_steps=None)
 @pytest.mark.parametrize("simulator", ["icarus", "verilator"])
 def test_probe_port_verilog(simulator, fast_verilator_builds):
     check_verilog(simulator, TINY, 7, 3e-4, 2, 2, seed=7)
+
+
+@pytest.mark.hdl
+def test_probe_port_verilog_builtin_poke_scene(fast_verilator_builds):
+    """The built-in poke-2d-viscoelastic (153 nodes, k = 10) on Verilator: 12 samples 0.125 mm apart (4x the
+    design poke's speed, formats of its first 600 steps): 1 mm of air, then contact."""
+    pm = check_verilog("verilator", "poke-2d-viscoelastic", 12, 1.25e-4, 2, 2, seed=3, range_steps=600)
+    assert pm["steps_per_sample_k"] == 10
