@@ -2,8 +2,9 @@
 Amaranth's simulator: a poke trajectory streamed through `probe_in` with random gaps between samples and
 random back-pressure on `force_out`; every force word and contact count, and the node and element state
 at the end, against `BitTrue` (hold_probe, k steps, probe_raw); the measured latency from each sample's
-handshake to its force against the core's `probe_latency` (the manifest's). Verilog on Icarus and
-Verilator (the built-in poke-2d-viscoelastic there): tests/test_stream_hdl.py.
+handshake to its force against the core's `probe_latency` (the manifest's). The same on the emitted
+Verilog on Icarus and Verilator through cocotb (sim/cocotb_core.py; marked hdl), and with RHEO_STREAM_ALL=1
+the built-in poke-2d-viscoelastic on Verilator.
 
 Amaranth's simulator runs the built-in poke scene at about 130 cycles a second (12 samples of 4,000
 cycles: 6 minutes), so this test takes tests/scenes/poke-tiny.toml (15 nodes, k = 4, 139 cycles a step at
@@ -128,6 +129,22 @@ def check_stream(bt, core, words, want, st, sat, seed):
     assert np.array_equal(A, st.A)
     assert hw_sat == sat
     assert lat == [core.probe_latency] * len(words), (lat, core.probe_latency)
+
+
+def test_core_runs_of_a_probe_scene_without_the_port_are_refused_in_one_line():
+    """`rheo simulate --backend amaranth` (RUN only: nobody drives the port) and `rheo verilog --core phased`
+    refuse a probe scene in one line each."""
+    import subprocess
+    import sys
+    root = Path(__file__).resolve().parents[1]
+    for args, words in ((["simulate", "poke-2d-viscoelastic", "--backend", "amaranth", "--out", "unused.npz"],
+                         ("has a probe", "probe port", "--backend fixed")),
+                        (["verilog", "poke-2d-viscoelastic", "--core", "phased", "--out", "unused"],
+                         ("phased core has no probe port", "--core stream"))):
+        r = subprocess.run([sys.executable, "-m", "sim.cli", *args], cwd=root, capture_output=True, text=True)
+        lines = [ln for ln in r.stderr.splitlines() if ln.startswith("rheo: error:")]
+        assert r.returncode == 2 and len(lines) == 1, r.stderr[-2000:]
+        assert all(w in lines[0] for w in words), lines[0]
 
 
 def test_probe_scenes_go_to_the_streaming_core():
