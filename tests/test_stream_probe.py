@@ -205,3 +205,46 @@ def test_probe_port_verilog_builtin_poke_scene(fast_verilator_builds):
     then contact. With RHEO_STREAM_ALL=1 (as tests/test_stream_hdl.py's long set): about 5 minutes."""
     pm = check_verilog("verilator", "poke-2d-viscoelastic", 12, 1.25e-4, 2, 2, seed=3, range_steps=600)
     assert pm["steps_per_sample_k"] == 10
+
+
+@pytest.mark.hdl
+@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
+def test_probe_scene_verilog_has_the_port_and_passes_verilator_lint(tmp_path):
+    """`rheo verilog` of a probe scene: the streams on the top, the manifest's latency = the core's."""
+    import subprocess
+    from hw import emit
+    from sim.simulators import find_verilator
+    bt = probe_model(TINY)
+    man = emit.write(bt, tmp_path, 2, 2, core="stream")
+    text = (tmp_path / man["verilog"]).read_text()
+    for port in ("probe_in__valid", "probe_in__ready", "probe_in__payload", "force_out__valid", "force_out__ready",
+                 "force_out__payload"):
+        assert f" {port}" in text, port
+    pm = man["probe_port"]
+    assert pm["latency_cycles"] == build_core(bt, 2, 2, "stream").probe_latency == \
+        pm["sample_kernel_stages"] + pm["run_cycles_k"] + 2
+    assert "probe_port" in {u["unit"] for u in man["units_present"]}
+    r = subprocess.run([find_verilator(), "--lint-only", "-Wno-WIDTH", "--top-module", man["top"],
+                        str(tmp_path / man["verilog"])], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-3000:]
+
+
+@pytest.mark.hdl
+@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
+def test_bench_fpga_states_the_probe_ports_latency_and_sample_rate(fast_verilator_builds):
+    """`rheo bench --backend fpga --scene` of a probe scene: samples through the port on Verilator, the
+    measured latency = the manifest's, in microseconds at Fmax, and the device samples per second."""
+    import json
+    import subprocess
+    import sys
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, "-m", "sim.cli", "bench", "--backend", "fpga", "--scene", TINY, "--preset", "wide",
+                        "--lanes", "2", "--node-lanes", "2", "--fmax-mhz", "50", "--seconds", "0.2", "--json"],
+                       cwd=root, capture_output=True, text=True, timeout=3600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    row = json.loads(r.stdout)["results"][0]
+    L = row["probe_latency_cycles"]
+    assert row["probe_k"] == 4 and row["probe_latency_measured"] == [L, L]
+    assert L == build_core(probe_model(TINY), 2, 2, "stream").probe_latency
+    assert row["probe_latency_us"] == pytest.approx(L / 50.0, rel=1e-12)
+    assert row["device_samples_per_s"] == pytest.approx(50e6 / (L + 1), rel=1e-12)
