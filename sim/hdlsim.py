@@ -140,3 +140,77 @@ def simulate_hdl(system: System, simulator: str, preset="wide", steps=None, ever
     run = frames.run(at * system.dt, out["wall_s"])
     run.info["cycles_per_step"] = np.int64(man["cycles_per_step"]["value"])
     return run
+
+
+class HdlCore:
+    """A core's Verilog on a simulator driven command by command (a haptic session): the cocotb testbench
+    (sim/cocotb_core.py `serve_session`) runs in a worker thread and reads JSON commands from a FIFO, so
+    `call(cmd, *args)` works as AmaranthCore's: "load", "sample" (the probe port), "read_state"."""
+
+    OPEN_TIMEOUT_S = 1800         # the build comes first (minutes for Verilator)
+
+    def __init__(self, bt: BitTrue, simulator: str, lanes: int = 1, node_lanes: int = 1):
+        import time
+        from .simulators import run_cocotb
+        if simulator not in SIMULATORS:
+            raise BadArgument(f"unknown simulator '{simulator}' (known: {', '.join(SIMULATORS)})")
+        self.dir, man, self.drv = emit_core(bt, lanes, node_lanes, core="stream")
+        self.probe_latency = (man.get("probe_port") or {}).get("latency_cycles")
+        self._tmp = tempfile.TemporaryDirectory(prefix="rheo-session-")
+        tmp = Path(self._tmp.name)
+        for name in ("cmd", "ans"):
+            os.mkfifo(tmp / name)
+        job = tmp / "job.npz"
+        np.savez(job, **self.drv.to_job(), load_words=np.zeros((0, 2), np.int64), frames=np.zeros(0, np.int64),
+                 probe_x_bits=bt.formats["x"].width, probe_f_bits=bt.formats["fprobe"].width)
+        env = {"RHEO_JOB": str(job), "RHEO_RESULT": str(tmp / "result.npz"), "RHEO_SESSION": str(tmp),
+               "PYTHONPATH": os.pathsep.join([str(SIM_DIR.parent), os.environ.get("PYTHONPATH", "")])}
+        self._error = None
+
+        def run():
+            try:
+                run_cocotb(simulator=simulator, verilog_sources=[self.dir / f"{emit.TOP}.v"], toplevel=emit.TOP,
+                           test_module="sim.cocotb_core", test_dir=SIM_DIR.parent, build_dir=self.dir / simulator,
+                           extra_env=env)
+            except BaseException as exc:          # reported to the caller
+                self._error = exc
+        self._thread = threading.Thread(target=run, daemon=True)
+        self._thread.start()
+        t0 = time.monotonic()
+        while True:                               # the testbench opens cmd once the simulation runs
+            try:
+                fd = os.open(tmp / "cmd", os.O_WRONLY | os.O_NONBLOCK)
+                break
+            except OSError:
+                if not self._thread.is_alive() or time.monotonic() - t0 > self.OPEN_TIMEOUT_S:
+                    raise RuntimeError(f"the {simulator} session did not start: {self._error}")
+                time.sleep(0.2)
+        os.set_blocking(fd, True)
+        self._cmd = os.fdopen(fd, "w")
+        self._ans = open(tmp / "ans")
+
+    def call(self, cmd, *args):
+        import json
+        conv = lambda v: np.asarray(v).tolist() if isinstance(v, (list, tuple, np.ndarray)) else v
+        self._cmd.write(json.dumps([cmd, *[[conv(a) for a in v] if isinstance(v, list) else conv(v)
+                                           for v in args]]) + "\n")
+        self._cmd.flush()
+        line = self._ans.readline()
+        if not line:
+            raise RuntimeError(f"the simulation has stopped: {self._error}")
+        kind, out = json.loads(line)
+        if kind == "err":
+            raise RuntimeError(out)
+        return self.drv.decode(out) if cmd == "read_state" else out
+
+    def close(self):
+        if self._thread.is_alive():
+            try:
+                self._cmd.write('["stop"]\n')
+                self._cmd.flush()
+            except OSError:
+                pass
+            self._thread.join(timeout=60)
+        for f in (self._cmd, self._ans):
+            f.close()
+        self._tmp.cleanup()

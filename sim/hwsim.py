@@ -92,6 +92,7 @@ class AmaranthCore:
         self.sim = Simulator(self.core)
         self.sim.add_clock(1e-8)
         self.cycles_per_step = self.core.cycles_per_step
+        self.probe_latency = getattr(self.core, "probe_latency", None)
         self._cmd, self._res = queue.Queue(), queue.Queue()
         self.sim.add_testbench(self._testbench)
         self._thread = threading.Thread(target=self._run, daemon=True)

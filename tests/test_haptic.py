@@ -391,28 +391,26 @@ def test_api_refuses_a_stepper_that_takes_no_probe(monkeypatch):
         connect(scene_system("poke-2d-rheological"), "cpu")
 
 
-@pytest.mark.parametrize("backend", ["icarus", "verilator"])
-def test_api_hardware_backends_refuse_a_probe_clearly(backend):
-    with pytest.raises(HapticError, match=f"backend '{backend}' cannot take a probe yet"):
-        connect("poke-2d-rheological", backend)
-
-
 @pytest.mark.hdl
-def test_api_amaranth_backend_is_the_fixed_backend_bit_for_bit():
-    """connect(scene, "amaranth"): each sample through the streaming core's probe port in Amaranth's simulator;
-    the force words, contacts and the frame at the end equal the fixed backend's (tests/scenes/poke-tiny.toml:
+@pytest.mark.parametrize("backend", ["amaranth", "icarus", "verilator"])
+def test_api_core_backends_are_the_fixed_backend_bit_for_bit(backend, monkeypatch):
+    """connect(scene, "amaranth" | "icarus" | "verilator"): each sample through the streaming core's probe port
+    (Amaranth's simulator, or the emitted Verilog in a cocotb session); the force words, contacts and the frame
+    at the end equal the fixed backend's, each sample's latency the manifest's (tests/scenes/poke-tiny.toml:
     a few cycles a step)."""
     from hw.bittrue import BitTrue
+    if "OPT_FAST" not in os.environ.get("MAKEFLAGS", ""):            # Verilator: a quick build
+        monkeypatch.setenv("MAKEFLAGS", (os.environ.get("MAKEFLAGS", "") + " OPT_FAST=-O0 OPT_SLOW=-O0 OPT_GLOBAL=-O0").strip())
     system = load_scene(str(Path(__file__).resolve().parent / "scenes" / "poke-tiny.toml"))
     formats = BitTrue(system, "wide").formats
     path = system.probe.position - np.outer(np.arange(1, 7), [0.0, 3e-4])
     runs = {}
-    for backend in ("fixed", "amaranth"):
-        with connect(system, backend, bittrue=BitTrue(system, "wide", formats=formats)) as sim:
-            runs[backend] = ([sim.step(p) for p in path], sim.frame()[0].copy())
-            if backend == "amaranth":
-                assert sim.stepper.latency == [sim.stepper.hw.core.probe_latency] * len(path)
-    (fixed, xf), (hw, xh) = runs["fixed"], runs["amaranth"]
+    for b in ("fixed", backend):
+        with connect(system, b, bittrue=BitTrue(system, "wide", formats=formats)) as sim:
+            runs[b] = ([sim.step(p) for p in path], sim.frame()[0].copy())
+            if b == backend:
+                assert sim.stepper.latency == [sim.stepper.hw.probe_latency] * len(path)
+    (fixed, xf), (hw, xh) = runs["fixed"], runs[backend]
     assert max(r.contacts for r in fixed) > 0
     assert [(r.raw.tolist(), r.contacts) for r in hw] == [(r.raw.tolist(), r.contacts) for r in fixed]
     assert np.array_equal(xh, xf)
