@@ -512,6 +512,24 @@ def test_haptic_run_file(haptic_run):
         assert float(f["probe_radius"]) == 0.008 and str(f["backend"]) == "golden"
 
 
+@pytest.mark.hdl
+def test_haptic_cli_on_icarus_writes_the_fixed_backends_run(tmp_path):
+    """`rheo haptic --backend icarus` (the probe port in a cocotb session): the fixed backend's force words and
+    frames, the hardware's saturation count and the port's latency per sample in the run file."""
+    scene = Path(__file__).resolve().parent / "scenes" / "poke-tiny.toml"
+    traj = tmp_path / "traj.csv"
+    traj.write_text("dx,dy\n" + "".join(f"0,{-3e-4 * (s + 1):.6g}\n" for s in range(6)))
+    files = {}
+    for backend in ("fixed", "icarus"):
+        files[backend] = tmp_path / f"{backend}.npz"
+        proc = rheo("haptic", scene, "--trajectory", traj, "--backend", backend, "--out", files[backend])
+        assert proc.returncode == 0, proc.stderr[-3000:]
+    with np.load(files["fixed"]) as a, np.load(files["icarus"]) as b:
+        assert np.array_equal(a["probe_force_raw"], b["probe_force_raw"]) and b["probe_contacts"].max() == 2
+        assert np.array_equal(a["x"], b["x"]) and str(b["backend"]) == "icarus"
+        assert list(b["saturation_counts"]) == [0] and len(set(b["probe_latency_cycles"].tolist())) == 1
+
+
 def test_show_and_plot_force_draw_a_haptic_run(haptic_run):
     from PIL import Image
     tmp, out = haptic_run
