@@ -77,8 +77,8 @@ class CoreConfig:
             if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 64:
                 raise BadArgument(f"{name} must be an integer in 1..64, got {v!r}")
         if self.params.probe is not None:
-            raise NotSupported("this core has no probe port yet (issue 16 item 3: the streaming core's); a scene "
-                               "with a [probe] runs on the golden and fixed backends")
+            from .stream import PHASED_NO_PROBE
+            raise NotSupported(PHASED_NO_PROBE)
 
     @classmethod
     def of(cls, bt, lanes=1, node_lanes=1) -> "CoreConfig":

@@ -33,6 +33,9 @@ SPECIALISATION = [
     ("friction", lambda f: f["friction"], "regularised Coulomb friction at the floor"),
     ("rsqrt_friction", lambda f: (f["friction"] or f["collision_friction"]) and f["dim"] == 3,
      "1/sqrt unit for |tangential force| (3D)"),
+    ("probe_port", lambda f: f["probe"], "haptic probe: sample and force streams, the per-sample kernel, the "
+                                         "probe term in the node pipeline (1/sqrt unit for 1/d), the exact force sum"),
+    ("probe_friction", lambda f: f["probe_friction"], "regularised Coulomb friction on the probe"),
     ("gravity", lambda f: f["gravity"], "gravity added to every free node"),
     ("loads", lambda f: f["loads"], "external loads: per-node membership flags and step windows"),
     ("per_node_mass", lambda f: f["per_node_mass"], "per-node 1/m memory and multiplier (absent: uniform mass)"),

@@ -86,6 +86,11 @@ def run_backend(system: System, backend: str, steps=None, every=None, progress=F
         if backend == "cpu":
             from sim.cpu import Cpu
             return simulate(system, steps=steps, every=every, progress=progress, stepper=Cpu(system))
+        if backend != "fixed" and system.probe is not None:
+            from hw.datapath import NotSupported
+            raise NotSupported(f"scene '{system.name}' has a probe: on the core its samples come through the probe "
+                               f"port, which a scripted run does not drive; use --backend fixed (bit for bit the "
+                               f"same), or sim.haptic.connect(scene, backend=\"amaranth\") to drive the port")
         bt = bittrue or bit_true_model(system, preset, steps)
         if backend == "fixed":
             return simulate(system, steps=steps, every=every, progress=progress, stepper=bt)

@@ -172,6 +172,9 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
     its prologue and epilogue), from the initial state; each read-back must equal the bit-true model's.
     With `fmax_mhz` None the core is placed and routed for `device` (once per Verilog, cached in
     build/synth/; the streaming core with its DP16KD instances).
+    A scene with a [probe] also streams PROBE_SAMPLES device samples through the probe port (state checked
+    after them); the row adds the port's latency (the manifest's cycles, equal to the measured ones) in
+    microseconds and the device samples per second at Fmax (`probe_rates`).
     """
     from hw.bittrue import BitTrue
     from hw.datapath import state_difference
@@ -196,10 +199,22 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
     steps = max(2, steps)
     say(f"{simulator}: runs of 1 and {steps} steps of the {kind} core in {core_dir}")
     st = bt.initial_state()
-    out = run_job(simulator, core_dir, drv, drv.load_words(st.X, st.U, st.A, 0), [1, steps])
-    for n, frame in zip((1, steps), out["frames"]):
-        for _ in range(n):
-            bt.step(st)
+    probe = None
+    if system.probe is not None:         # runs by RUN (port off: the probe held), then PROBE_SAMPLES samples
+        st.probe.driven = True
+        probe = {"words": [st.probe.P] * PROBE_SAMPLES, "x_bits": bt.formats["x"].width,
+                 "f_bits": bt.formats["fprobe"].width, "seed": 0}
+    out = run_job(simulator, core_dir, drv, drv.load_words(st.X, st.U, st.A, 0), [1, steps], probe=probe)
+    runs = [1, steps] + ([None] if probe else [])
+    for n, frame in zip(runs, out["frames"]):
+        if n is None:                    # after the samples through the port
+            for _ in range(PROBE_SAMPLES):
+                bt.hold_probe(st, system.probe.position)
+                for _ in range(bt.params.probe["k"]):
+                    bt.step(st)
+        else:
+            for _ in range(n):
+                bt.step(st)
         X, U, A, step = frame[:4]
         if (why := state_difference(st, X, U, A, step)) is not None:
             raise RuntimeError(f"{simulator}: the core's state after {st.step} steps differs from the bit-true "
@@ -210,7 +225,8 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
                lanes=lanes, node_lanes=node_lanes, core=kind, simulator=simulator, cycles_per_step=cycles,
                cycles_per_step_schedule=man["cycles_per_step"]["value"], run_cycles=out["cycles"],
                ideal_cycles_per_step=-(-system.n_elements // lanes),
-               simulator_cycles_per_s=sum(out["cycles"]) / max(out["wall_s"], 1e-9), core_dir=str(core_dir))
+               simulator_cycles_per_s=(sum(out["cycles"]) + sum(out.get("latency", []))) / max(out["wall_s"], 1e-9),
+               core_dir=str(core_dir))
     if fmax_mhz is None:
         say(f"place and route for {device} (Yosys + nextpnr, once per Verilog; tens of minutes for large cores)")
         synth_dir = core_dir
@@ -224,12 +240,28 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
         source = "stated (--fmax-mhz)"
     row.update(fmax_mhz=fmax_mhz, fmax_source=source, steps_per_s=fmax_mhz * 1e6 / cycles,
                element_updates_per_s=fmax_mhz * 1e6 / cycles * system.n_elements)
+    if probe is not None:
+        row.update(probe_rates(man["probe_port"], out["latency"], fmax_mhz))
     say("golden model and the cpu backend on the same scene")
     cmp = compare_cpu(system, min_seconds)
     row.update(golden_steps_per_s=cmp["golden_steps_per_s"], ratio_to_golden=row["steps_per_s"] / cmp["golden_steps_per_s"],
                cpu_steps_per_s=cmp["cpu_steps_per_s"], cpu_threads=cmp["cpu_threads"],
                ratio_to_cpu=row["steps_per_s"] / cmp["cpu_steps_per_s"])
     return row
+
+
+PROBE_SAMPLES = 2      # device samples through the probe port (at the initial position) to measure its latency
+
+
+def probe_rates(port: dict, measured: list, fmax_mhz: float) -> dict:
+    """The probe port's figures at `fmax_mhz`: its latency from sample to force (the manifest's cycles, which
+    the measured ones must equal) in microseconds, and the device samples per second it sustains (one per
+    latency + 1 cycles: the next sample is taken the cycle after a force)."""
+    L = port["latency_cycles"]
+    if any(int(m) != L for m in measured):
+        raise RuntimeError(f"the probe port's measured latencies {list(measured)} differ from the manifest's {L} cycles")
+    return dict(probe_k=port["steps_per_sample_k"], probe_latency_cycles=L, probe_latency_measured=list(measured),
+                probe_latency_us=L / fmax_mhz, device_samples_per_s=fmax_mhz * 1e6 / (L + 1))
 
 
 def run(backend: str, sizes=SIZES, min_seconds: float = 1.0, scene: System | None = None, **fpga) -> list[dict]:

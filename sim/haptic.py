@@ -2,7 +2,7 @@
 reads the force the object pushes it with, on any backend that can take a probe.
 
     from sim.haptic import connect
-    with connect("poke-2d-rheological", backend="golden") as sim:      # or "cpu", "fixed"
+    with connect("poke-2d-rheological", backend="golden") as sim:      # or cpu, fixed, amaranth, icarus, verilator
         for p in positions:                   # one device sample each (a 1 kHz device: every 1 ms)
             force, contacts = sim.step(p)     # k steps with p held; the force of the last one (N)
 
@@ -10,7 +10,9 @@ reads the force the object pushes it with, on any backend that can take a probe.
 velocity pdot = (p - p_prev) / (k dt), and returns a `Reading`: the force on the probe in the last of the
 k steps (minus the exact sum of its node forces: what the device renders) and how many nodes touch it.
 The same code drives every backend; the fixed-point backend's readings are bit-true (`Reading.raw`: the
-force words the hardware's force stream will carry). A backend that cannot take a probe yet refuses when
+force words the hardware's force stream carries); "amaranth" runs each sample through the streaming core's
+probe port (hw/stream/probeport.py) in Amaranth's simulator and returns the words of its force stream;
+"icarus" and "verilator" the same on the emitted Verilog (a cocotb session served command by command). A backend that cannot take a probe yet refuses when
 connected, with a RheoError that says so.
 
 Also here: the trajectory CSV of `rheo haptic` (`read_trajectory`), a trajectory run recorded as a run file
@@ -29,10 +31,8 @@ import numpy as np
 from golden.errors import RheoError
 from golden.system import System
 
-HAPTIC_BACKENDS = ("golden", "cpu", "fixed")           # backends that take a probe
-LATER = {"amaranth": "the core's probe port (issue 16 item 3) is not built yet",
-         "icarus": "the core's probe port (issue 16 item 3) is not built yet",
-         "verilator": "the core's probe port (issue 16 item 3) is not built yet"}
+HAPTIC_BACKENDS = ("golden", "cpu", "fixed", "amaranth", "icarus", "verilator")   # backends that take a probe
+LATER: dict = {}                          # backend -> why it cannot take a probe yet
 
 
 class HapticError(RheoError, ValueError):
@@ -67,6 +67,16 @@ def _stepper(system: System, backend: str, preset: str, bittrue):
         from hw.bittrue import BitTrue
         with np.errstate(over="ignore", invalid="ignore"):
             return BitTrue(system, preset)
+    if backend in ("amaranth", "icarus", "verilator"):      # the streaming core's probe port, simulated
+        from hw.bittrue import BitTrue
+        from sim.hwsim import AmaranthCore, PortStepper
+        if bittrue is None:
+            with np.errstate(over="ignore", invalid="ignore"):
+                bittrue = BitTrue(system, preset)
+        if backend == "amaranth":
+            return PortStepper(bittrue, AmaranthCore(bittrue, core="stream"))
+        from sim.hdlsim import HdlCore
+        return PortStepper(bittrue, HdlCore(bittrue, backend))
     if backend in LATER:
         raise HapticError(f"backend '{backend}' cannot take a probe yet: {LATER[backend]}; use golden, cpu "
                           f"or fixed")
@@ -129,7 +139,7 @@ class Session:
 
 def connect(scene, backend: str = "golden", preset: str = "wide", bittrue=None) -> Session:
     """A haptic session on `scene` (a built-in name, a scene file or a System with a [probe]) and `backend`
-    (golden, cpu, fixed); `preset`: the fixed backend's number formats (derived for the scene's design
+    (golden, cpu, fixed; amaranth, icarus, verilator: the streaming core's probe port, simulated); `preset`: the fixed backend's number formats (derived for the scene's design
     poke); `bittrue`: a bit-true model to use instead (its formats)."""
     return Session(scene, backend, preset, bittrue)
 

@@ -53,9 +53,12 @@ def emit_core(bt: BitTrue, lanes=1, node_lanes=1, root: Path | None = None, core
 
 
 def run_job(simulator: str, core_dir: Path, drv: HostDriver, load_words, frames, reset_after: int = 0,
-            timeout_s: float | None = None, progress=None) -> dict:
+            timeout_s: float | None = None, progress=None, probe: dict | None = None) -> dict:
     """One cocotb run: load, run each frame's steps, read back; returns decoded frames and cycles.
-    `progress(done, total)` hears the simulated cycles while the simulation runs (polled twice a second)."""
+    `progress(done, total)` hears the simulated cycles while the simulation runs (polled twice a second).
+    `probe` (a core with a probe port): {"words": (S, D) x words, "x_bits", "f_bits", "seed"}: the samples
+    are then streamed through the port (sim/cocotb_core.py) and "forces", "contacts", "latency" returned,
+    with the state read back after them as the last frame."""
     from .simulators import run_cocotb
     if simulator not in SIMULATORS:
         raise BadArgument(f"unknown simulator '{simulator}' (known: {', '.join(SIMULATORS)})")
@@ -63,8 +66,11 @@ def run_job(simulator: str, core_dir: Path, drv: HostDriver, load_words, frames,
         job = Path(tmp) / "job.npz"
         result = Path(tmp) / "result.npz"
         progress_file = Path(tmp) / "progress"
+        extra = {} if probe is None else {
+            "probe_words": np.array(probe["words"], np.int64).reshape(len(probe["words"]), -1),
+            "probe_x_bits": probe["x_bits"], "probe_f_bits": probe["f_bits"], "probe_seed": probe["seed"]}
         np.savez(job, **drv.to_job(), load_words=np.array(load_words, np.int64),
-                 frames=np.array(frames, np.int64), reset_after=reset_after)
+                 frames=np.array(frames, np.int64), reset_after=reset_after, **extra)
         env = {"RHEO_JOB": str(job), "RHEO_RESULT": str(result),
                "PYTHONPATH": os.pathsep.join([str(SIM_DIR.parent), os.environ.get("PYTHONPATH", "")])}
         if progress is not None:
@@ -75,8 +81,12 @@ def run_job(simulator: str, core_dir: Path, drv: HostDriver, load_words, frames,
                        test_module="sim.cocotb_core", test_dir=SIM_DIR.parent, build_dir=core_dir / simulator,
                        extra_env=env, timeout_s=timeout_s)
         res = np.load(result)
-        return {"frames": [drv.decode(r) for r in res["reads"]], "cycles": res["cycles"].tolist(),
-                "wall_s": float(res["wall"])}
+        out = {"frames": [drv.decode(r) for r in res["reads"]], "cycles": res["cycles"].tolist(),
+               "wall_s": float(res["wall"])}
+        for key in ("forces", "contacts", "latency"):
+            if key in res:
+                out[key] = res[key].tolist()
+        return out
 
 
 @contextlib.contextmanager
@@ -130,3 +140,77 @@ def simulate_hdl(system: System, simulator: str, preset="wide", steps=None, ever
     run = frames.run(at * system.dt, out["wall_s"])
     run.info["cycles_per_step"] = np.int64(man["cycles_per_step"]["value"])
     return run
+
+
+class HdlCore:
+    """A core's Verilog on a simulator driven command by command (a haptic session): the cocotb testbench
+    (sim/cocotb_core.py `serve_session`) runs in a worker thread and reads JSON commands from a FIFO, so
+    `call(cmd, *args)` works as AmaranthCore's: "load", "sample" (the probe port), "read_state"."""
+
+    OPEN_TIMEOUT_S = 1800         # the build comes first (minutes for Verilator)
+
+    def __init__(self, bt: BitTrue, simulator: str, lanes: int = 1, node_lanes: int = 1):
+        import time
+        from .simulators import run_cocotb
+        if simulator not in SIMULATORS:
+            raise BadArgument(f"unknown simulator '{simulator}' (known: {', '.join(SIMULATORS)})")
+        self.dir, man, self.drv = emit_core(bt, lanes, node_lanes, core="stream")
+        self.probe_latency = (man.get("probe_port") or {}).get("latency_cycles")
+        self._tmp = tempfile.TemporaryDirectory(prefix="rheo-session-")
+        tmp = Path(self._tmp.name)
+        for name in ("cmd", "ans"):
+            os.mkfifo(tmp / name)
+        job = tmp / "job.npz"
+        np.savez(job, **self.drv.to_job(), load_words=np.zeros((0, 2), np.int64), frames=np.zeros(0, np.int64),
+                 probe_x_bits=bt.formats["x"].width, probe_f_bits=bt.formats["fprobe"].width)
+        env = {"RHEO_JOB": str(job), "RHEO_RESULT": str(tmp / "result.npz"), "RHEO_SESSION": str(tmp),
+               "PYTHONPATH": os.pathsep.join([str(SIM_DIR.parent), os.environ.get("PYTHONPATH", "")])}
+        self._error = None
+
+        def run():
+            try:
+                run_cocotb(simulator=simulator, verilog_sources=[self.dir / f"{emit.TOP}.v"], toplevel=emit.TOP,
+                           test_module="sim.cocotb_core", test_dir=SIM_DIR.parent, build_dir=self.dir / simulator,
+                           extra_env=env)
+            except BaseException as exc:          # reported to the caller
+                self._error = exc
+        self._thread = threading.Thread(target=run, daemon=True)
+        self._thread.start()
+        t0 = time.monotonic()
+        while True:                               # the testbench opens cmd once the simulation runs
+            try:
+                fd = os.open(tmp / "cmd", os.O_WRONLY | os.O_NONBLOCK)
+                break
+            except OSError:
+                if not self._thread.is_alive() or time.monotonic() - t0 > self.OPEN_TIMEOUT_S:
+                    raise RuntimeError(f"the {simulator} session did not start: {self._error}")
+                time.sleep(0.2)
+        os.set_blocking(fd, True)
+        self._cmd = os.fdopen(fd, "w")
+        self._ans = open(tmp / "ans")
+
+    def call(self, cmd, *args):
+        import json
+        conv = lambda v: np.asarray(v).tolist() if isinstance(v, (list, tuple, np.ndarray)) else v
+        self._cmd.write(json.dumps([cmd, *[[conv(a) for a in v] if isinstance(v, list) else conv(v)
+                                           for v in args]]) + "\n")
+        self._cmd.flush()
+        line = self._ans.readline()
+        if not line:
+            raise RuntimeError(f"the simulation has stopped: {self._error}")
+        kind, out = json.loads(line)
+        if kind == "err":
+            raise RuntimeError(out)
+        return self.drv.decode(out) if cmd == "read_state" else out
+
+    def close(self):
+        if self._thread.is_alive():
+            try:
+                self._cmd.write('["stop"]\n')
+                self._cmd.flush()
+            except OSError:
+                pass
+            self._thread.join(timeout=60)
+        for f in (self._cmd, self._ans):
+            f.close()
+        self._tmp.cleanup()

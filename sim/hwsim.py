@@ -52,6 +52,35 @@ class AmaranthBus:
         await self.ctx.tick().repeat(cycles)
 
 
+class AmaranthProbe:
+    """The streaming core's probe port (hw/stream/probeport.py) driven from an Amaranth async testbench."""
+
+    def __init__(self, ctx, core):
+        self.ctx, self.core = ctx, core
+
+    async def sample(self, words):
+        """One device sample (x words): offered until taken, then its force taken at once; returns (fprobe
+        words, contacts, latency in cycles from the sample's handshake to its force)."""
+        from hw.stream.nodeword import pack_ints, unpack_ints
+        c, pp, pi, fo = self.ctx, self.core.probe, self.core.probe_in, self.core.force_out
+        c.set(pi.payload, pack_ints(words, pp.x_bits))
+        c.set(pi.valid, 1)
+        while not c.get(pi.ready):
+            await c.tick()
+        await c.tick()
+        c.set(pi.valid, 0)
+        cycles = 1
+        while not c.get(fo.valid):
+            await c.tick()
+            cycles += 1
+        w = int(c.get(fo.payload))
+        c.set(fo.ready, 1)
+        await c.tick()
+        c.set(fo.ready, 0)
+        D = self.core.cfg.dim
+        return unpack_ints(w, D, pp.f_bits), w >> (D * pp.f_bits), cycles
+
+
 class AmaranthCore:
     """A core for one scene inside Amaranth's simulator, called like a HostDriver (blocking).
     `core`: "phased" (hw/core.py), "stream" (hw/stream/core.py) or "auto"."""
@@ -63,6 +92,7 @@ class AmaranthCore:
         self.sim = Simulator(self.core)
         self.sim.add_clock(1e-8)
         self.cycles_per_step = self.core.cycles_per_step
+        self.probe_latency = getattr(self.core, "probe_latency", None)
         self._cmd, self._res = queue.Queue(), queue.Queue()
         self.sim.add_testbench(self._testbench)
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -76,12 +106,13 @@ class AmaranthCore:
 
     async def _testbench(self, ctx):
         drv = HostDriver.for_map(self.cfg.host_map, self.core.cycles_per_step, AmaranthBus(ctx, self.core.host))
+        probe = AmaranthProbe(ctx, self.core) if getattr(self.core, "probe", None) is not None else None
         while True:
             cmd, args = self._cmd.get()
             if cmd == "stop":
                 return
             try:
-                self._res.put(("ok", await getattr(drv, cmd)(*args)))
+                self._res.put(("ok", await getattr(probe if cmd == "sample" else drv, cmd)(*args)))
             except Exception as exc:
                 self._res.put(("err", exc))
 
@@ -148,6 +179,64 @@ class HardwareStepper(Stepper):
         return {**self.bt.run_info(), "saturation_names": np.array(["hardware"], dtype=str),
                 "saturation_counts": np.array([self.sat], np.int64),
                 "cycles": np.array(self.cycles, np.int64).reshape(-1, 2)}
+
+
+class PortStepper(HardwareStepper):
+    """A haptic session's stepper on a core with a probe port (sim/haptic.py `connect(..., "amaranth")`): each
+    device sample goes through the port (k steps on the core); the bit-true model `bt` converts the host's
+    position into the x words the port takes (`hold_probe`) and the force words into newtons. The state is
+    read back only when a frame is asked for."""
+
+    takes_probe = True
+
+    def __init__(self, bt: BitTrue, hw):
+        super().__init__(bt, hw)
+        self.k = bt.params.probe["k"]
+        self.latency = []                 # cycles from sample to force, per sample
+        self._words, self._stale = None, False
+
+    def hold_probe(self, st, p) -> None:
+        self.bt.hold_probe(st, p)
+        self._words = [int(v) for v in st.probe.P]
+
+    def advance(self, st, n, progress=None):
+        if n != self.k or self._words is None:
+            raise RuntimeError(f"the probe port runs one held sample's {self.k} steps at a time, asked for {n}")
+        F, contacts, cycles = self.hw.call("sample", self._words)
+        self._words, self._stale = None, True
+        st.probe.F, st.probe.contacts = F, contacts
+        st.step += n
+        self.latency.append(cycles)
+        if progress is not None:
+            progress(n)
+
+    def _sync(self, st):
+        if self._stale:
+            X, U, A, step, self.sat, _ = self.hw.call("read_state")
+            if step != st.step:
+                raise RuntimeError(f"the core's step counter reads {step}, expected {st.step}")
+            st.X, st.U, st.A = X, U, A
+            self._stale = False
+
+    def frame(self, st):
+        self._sync(st)
+        return self.bt.frame(st)
+
+    def record(self, st) -> dict:
+        self._sync(st)
+        return super().record(st)
+
+    def probe_reading(self, st):
+        return self.bt.probe_reading(st)
+
+    def probe_raw(self, st):
+        return self.bt.probe_raw(st)
+
+    def probe_position(self, st):
+        return self.bt.probe_position(st)
+
+    def close(self) -> None:
+        self.hw.close()
 
 
 def simulate_amaranth(system: System, preset="wide", steps=None, every=None, progress=False, lanes=1,

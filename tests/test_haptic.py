@@ -391,10 +391,29 @@ def test_api_refuses_a_stepper_that_takes_no_probe(monkeypatch):
         connect(scene_system("poke-2d-rheological"), "cpu")
 
 
+@pytest.mark.hdl
 @pytest.mark.parametrize("backend", ["amaranth", "icarus", "verilator"])
-def test_api_hardware_backends_refuse_a_probe_clearly(backend):
-    with pytest.raises(HapticError, match=f"backend '{backend}' cannot take a probe yet"):
-        connect("poke-2d-rheological", backend)
+def test_api_core_backends_are_the_fixed_backend_bit_for_bit(backend, monkeypatch):
+    """connect(scene, "amaranth" | "icarus" | "verilator"): each sample through the streaming core's probe port
+    (Amaranth's simulator, or the emitted Verilog in a cocotb session); the force words, contacts and the frame
+    at the end equal the fixed backend's, each sample's latency the manifest's (tests/scenes/poke-tiny.toml:
+    a few cycles a step)."""
+    from hw.bittrue import BitTrue
+    if "OPT_FAST" not in os.environ.get("MAKEFLAGS", ""):            # Verilator: a quick build
+        monkeypatch.setenv("MAKEFLAGS", (os.environ.get("MAKEFLAGS", "") + " OPT_FAST=-O0 OPT_SLOW=-O0 OPT_GLOBAL=-O0").strip())
+    system = load_scene(str(Path(__file__).resolve().parent / "scenes" / "poke-tiny.toml"))
+    formats = BitTrue(system, "wide").formats
+    path = system.probe.position - np.outer(np.arange(1, 7), [0.0, 3e-4])
+    runs = {}
+    for b in ("fixed", backend):
+        with connect(system, b, bittrue=BitTrue(system, "wide", formats=formats)) as sim:
+            runs[b] = ([sim.step(p) for p in path], sim.frame()[0].copy())
+            if b == backend:
+                assert sim.stepper.latency == [sim.stepper.hw.probe_latency] * len(path)
+    (fixed, xf), (hw, xh) = runs["fixed"], runs[backend]
+    assert max(r.contacts for r in fixed) > 0
+    assert [(r.raw.tolist(), r.contacts) for r in hw] == [(r.raw.tolist(), r.contacts) for r in fixed]
+    assert np.array_equal(xh, xf)
 
 
 def test_api_refuses_a_scene_without_a_probe_and_bad_positions():
@@ -491,6 +510,24 @@ def test_haptic_run_file(haptic_run):
         assert f["probe_contacts"].shape == (120,) and f["probe_t"][0] == pytest.approx(1e-3)
         assert f["probe_force"][-1, 1] > 0.05 and f["probe_contacts"].max() >= 1
         assert float(f["probe_radius"]) == 0.008 and str(f["backend"]) == "golden"
+
+
+@pytest.mark.hdl
+def test_haptic_cli_on_icarus_writes_the_fixed_backends_run(tmp_path):
+    """`rheo haptic --backend icarus` (the probe port in a cocotb session): the fixed backend's force words and
+    frames, the hardware's saturation count and the port's latency per sample in the run file."""
+    scene = Path(__file__).resolve().parent / "scenes" / "poke-tiny.toml"
+    traj = tmp_path / "traj.csv"
+    traj.write_text("dx,dy\n" + "".join(f"0,{-3e-4 * (s + 1):.6g}\n" for s in range(6)))
+    files = {}
+    for backend in ("fixed", "icarus"):
+        files[backend] = tmp_path / f"{backend}.npz"
+        proc = rheo("haptic", scene, "--trajectory", traj, "--backend", backend, "--out", files[backend])
+        assert proc.returncode == 0, proc.stderr[-3000:]
+    with np.load(files["fixed"]) as a, np.load(files["icarus"]) as b:
+        assert np.array_equal(a["probe_force_raw"], b["probe_force_raw"]) and b["probe_contacts"].max() == 2
+        assert np.array_equal(a["x"], b["x"]) and str(b["backend"]) == "icarus"
+        assert list(b["saturation_counts"]) == [0] and len(set(b["probe_latency_cycles"].tolist())) == 1
 
 
 def test_show_and_plot_force_draw_a_haptic_run(haptic_run):

@@ -20,24 +20,31 @@ Modules, one concept each (the first two without Amaranth):
   element.py     ElementLane; pair.py PairLane; node.py NodeLane
   control.py     Control: the run, its prologue, periods and epilogue
   hostport.py    HostPort: the register map of hw/hostmap.py; saturation.py SaturationCounter
+  probeport.py   ProbePort: a scene's haptic probe, samples in and forces out as streams (scenes with a [probe])
   core.py        StreamCore: the top, composing the components; manifest.py: its manifest
 """
 
 from golden.errors import BadArgument
 
 CORES = ("phased", "stream")
+PHASED_NO_PROBE = ("the phased core has no probe port: a scene with a [probe] runs on the streaming core "
+                   "(--core stream or auto)")
 
 
 def resolve_core(params, core: str = "auto") -> str:
     """The core a scene gets: "auto" is the streaming core unless the scene has collisions (their pairs
     are not local), which the phased core (hw/core.py) runs; asking for "stream" on such a scene fails
-    with NotStreamable."""
+    with NotStreamable. A scene with a [probe] gets the streaming core (its probe port); "phased" fails."""
     if core not in ("auto",) + CORES:
         raise BadArgument(f"unknown core {core!r} (known: auto, {', '.join(CORES)})")
     if params.probe is not None:
-        from .config import PROBE_LATER
         from ..datapath import NotSupported
-        raise NotSupported(PROBE_LATER)
+        if params.collision is not None:
+            raise NotSupported("a scene with a [probe] and collisions runs on no core: the probe port is the "
+                               "streaming core's, collisions the phased core's")
+        if core == "phased":
+            raise NotSupported(PHASED_NO_PROBE)
+        return "stream"
     if core == "auto":
         return "phased" if params.collision is not None else "stream"
     if core == "stream" and params.collision is not None:

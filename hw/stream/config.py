@@ -3,7 +3,8 @@
 From a bit-true model (its Params, formats and function units) and the lane counts: the stream order
 (hw/stream/order.py), the pipelines' stages (dry runs, hw/stream/kernels.py), the schedule
 (hw/stream/schedule.py), the node word layout, the force rings (one per lane role) with their
-accumulator widths, and the host address map of the renumbering (hw/hostmap.py).
+accumulator widths, and the host address map of the renumbering (hw/hostmap.py). A scene with a [probe]
+adds the probe port's sample kernel (`probe_dry`).
 """
 from __future__ import annotations
 
@@ -14,14 +15,10 @@ import numpy as np
 
 from ..datapath import NotSupported
 from ..hostmap import HostMap
-from .kernels import dry_run_element, dry_run_node, dry_run_pair, max_count
+from .kernels import dry_run_element, dry_run_node, dry_run_pair, dry_run_probe_sample, max_count
 from .nodeword import NodeWord
 from .order import lane_items, stream_order
 from .schedule import Latencies, build_schedule
-
-
-PROBE_LATER = ("no core has a probe port yet (issue 16 item 3); a scene with a [probe] runs on the golden, "
-               "cpu and fixed backends")
 
 
 class NotStreamable(NotSupported):
@@ -53,8 +50,6 @@ class StreamConfig:
         for name, v in (("lanes", lanes), ("node_lanes", node_lanes)):
             if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 64:
                 raise ValueError(f"{name} must be an integer in 1..64, got {v!r}")
-        if params.probe is not None:
-            raise NotSupported(PROBE_LATER)
         if params.collision is not None:
             raise NotStreamable("the streaming core does not take scenes with collisions (collision pairs are "
                                 "not local to the node numbering): use the phased core (--core phased)")
@@ -67,6 +62,7 @@ class StreamConfig:
         self.element_dry = dry_run_element(p, formats, units)
         self.pair_dry = dry_run_pair(p, formats, units) if len(pairs) else None
         self.node_dry = dry_run_node(p, formats, units, formats["fe"].width + 8)
+        self.probe_dry = dry_run_probe_sample(p, formats, units) if p.probe is not None else None
         self.latencies = Latencies(element=self.element_dry.stage,
                                    element_state=self.element_dry.outputs["state_stage"],
                                    node=self.node_dry.stage,

@@ -18,13 +18,18 @@ read-after-write rule, and the pipelines' stages it relies on come from dry runs
 lane asserts at elaboration that its pipeline has the same stages). The bit-true model's force sums are
 exact integers, so the streaming order gives its bits exactly.
 
-Everything is known at construction: `cycles_per_step`, `schedule`, `sat_quantities`, `memories()`.
+A scene with a [probe] adds `ProbePort` (hw/stream/probeport.py): the top's `probe_in` stream of device
+samples and `force_out` stream of probe forces; each sample runs k steps, `probe_latency` cycles from
+sample to force.
+
+Everything is known at construction: `cycles_per_step`, `schedule`, `sat_quantities`, `memories()`,
+`probe_latency`.
 """
 from __future__ import annotations
 
-from amaranth.hdl import Cat, Module
-from amaranth.lib import wiring
-from amaranth.lib.wiring import In
+from amaranth.hdl import Cat, Module, Mux
+from amaranth.lib import stream, wiring
+from amaranth.lib.wiring import In, Out
 
 from .bram import LATENCY, ram_record
 from .config import StreamConfig
@@ -35,6 +40,7 @@ from .hostport import HostPort, HostSignature
 from .node import NodeLane
 from .nodeword import bits_for, delay, segment
 from .pair import PairLane
+from .probeport import ProbePort
 from .saturation import SaturationCounter
 from .store import NodeStore
 from .window import NodeWindow
@@ -59,7 +65,9 @@ class StreamCore(wiring.Component):
         self.rings = [(RunSum if ring.runs else ForceRing)(D, fe, ring.acc_bits, Q, sch.window_groups, ram)
                       for ring in cfg.rings]
         self.nodes = [NodeLane(cfg, q) for q in range(Q)]
-        lanes = self.elements + self.pairs + self.nodes
+        self.probe = ProbePort(cfg) if cfg.params.probe is not None else None
+        self.probe_latency = self.probe.latency if self.probe is not None else None
+        lanes = self.elements + self.pairs + self.nodes + ([self.probe] if self.probe is not None else [])
         self.saturation = SaturationCounter([q for lane in lanes for q in lane.quantities])
         self.sat_quantities = self.saturation.quantities
         fields = [cfg.formats["x"]] * D + [cfg.formats["u"]] * D
@@ -68,7 +76,12 @@ class StreamCore(wiring.Component):
         for dry in (cfg.element_dry, cfg.pair_dry, cfg.node_dry):
             for k, n in (dry.ar.const_sat.items() if dry is not None else ()):
                 self.const_saturations[k] = self.const_saturations.get(k, 0) + n
-        super().__init__({"host": In(HostSignature)})
+        members = {"host": In(HostSignature)}
+        if self.probe is not None:       # the top's probe_in__valid/ready/payload, force_out__valid/ready/payload
+            pp = self.probe
+            members.update({"probe_in": In(stream.Signature(pp.samples.payload.shape())),
+                            "force_out": Out(stream.Signature(pp.forces.payload.shape()))})
+        super().__init__(members)
 
     def _store_init(self):
         """The initial node words per bank (the scene's initial state; the host loads it anyway)."""
@@ -114,8 +127,23 @@ class StreamCore(wiring.Component):
         m.submodules.hostport, m.submodules.saturation = hp, sat
         wiring.connect(m, wiring.flipped(self.host), hp.bus)
 
-        # control <-> host port
-        m.d.comb += [ctl.start.eq(hp.run_start), ctl.steps.eq(hp.run_steps), ctl.step_we.eq(hp.step_we),
+        # control <-> host port (and the probe port, whose runs the host's cannot interrupt)
+        pp = self.probe
+        if pp is None:
+            m.d.comb += [ctl.start.eq(hp.run_start), ctl.steps.eq(hp.run_steps)]
+        else:
+            m.submodules.probe = pp
+            wiring.connect(m, wiring.flipped(self.probe_in), pp.samples)
+            wiring.connect(m, pp.forces, wiring.flipped(self.force_out))
+            m.d.comb += [pp.busy.eq(ctl.busy), pp.host_start.eq(hp.run_start),
+                         ctl.start.eq(pp.start | (hp.run_start & ~pp.active)),
+                         ctl.steps.eq(Mux(pp.start, pp.steps, hp.run_steps))]
+            for lane in self.nodes:
+                for name in ("P", "Pdot", "Lo", "Hi"):
+                    m.d.comb += getattr(lane, f"probe_{name}").eq(getattr(pp, f"reg_{name}"))
+                m.d.comb += [pp.lanes[lane.q].valid.eq(lane.probe_valid), pp.lanes[lane.q].first.eq(lane.probe_first),
+                             pp.lanes[lane.q].touch.eq(lane.probe_touch), pp.lanes[lane.q].f.eq(lane.probe_f)]
+        m.d.comb += [ctl.step_we.eq(hp.step_we),
                      ctl.step_wdata.eq(hp.step_wdata),
                      hp.busy.eq(ctl.busy), hp.steps_left.eq(ctl.steps_left), hp.step.eq(ctl.step),
                      hp.cycles.eq(ctl.cycles), hp.sat_count.eq(sat.count), hp.sat_flags.eq(sat.flags),
@@ -162,7 +190,7 @@ class StreamCore(wiring.Component):
                      store.wr_data.eq(Cat(*[lane.store_data for lane in self.nodes]))]
 
         # saturation events, in the order the counter was built with
-        evs = [getattr(lane, f"sat{k}") for lane in self.elements + self.pairs + self.nodes
+        evs = [getattr(lane, f"sat{k}") for lane in self.elements + self.pairs + self.nodes + ([pp] if pp else [])
                for k in range(len(lane.quantities))]
         for k, ev in enumerate(evs):
             m.d.comb += getattr(sat, f"ev{k}").eq(ev)

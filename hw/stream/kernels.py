@@ -7,7 +7,11 @@ Each lane kind runs its kernel through `PipeArith` (hw/pipeline.py) with its inp
   pair     stage 0: issue; 2: ROM fields; 4: x, u of the D + 1 nodes; contributions at `stage`, each
            zero where the pair's gate is closed (the ring still counts the item: see ForceRing `first`)
   node     stage 0: retirement (window, force ring and ROM reads); 2: x, u, ROM fields; 4: the exact
-           sum of the force rings (partial sums of up to 4 rings at 3); x, u results at `stage`
+           sum of the force rings (partial sums of up to 4 rings at 3); x, u results at `stage`; with a
+           probe, its registers (constant during a run: no stage) and the node's probe force (gate, pfe)
+           at `probe_stage`
+  probe    once per device sample (hw/stream/probeport.py): stage 0 the sample P and the previous P;
+           P, Pdot, Lo, Hi at `stage`
 
 `dry_run_*` builds a kernel on a throw-away Module to learn its stages and saturating quantities before
 any component is elaborated (the schedule needs them at construction); each lane asserts at elaboration
@@ -20,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from amaranth.hdl import Fragment, Module, Mux, Signal
 
-from ..datapath import _node_flags, element_kernel, node_kernel, pair_kernel
+from ..datapath import ProbeInputs, _node_flags, element_kernel, node_kernel, pair_kernel, probe_sample_kernel
 from ..pipeline import PBool, PipeArith
 from ..rtl_fixed import as_shape
 from .bram import LATENCY
@@ -82,15 +86,37 @@ def build_pair(m, p, fmt, units, valid, name, src, kernel, X_roles, U_roles) -> 
     return Built(ar, stage, {"roles": roles})
 
 
-def build_node(m, p, fmt, units, valid, name, src, X, U, Fe, step) -> Built:
+def build_node(m, p, fmt, units, valid, name, src, X, U, Fe, step, probe: ProbeInputs | None = None) -> Built:
+    """`probe`: the probe's registers (signals, per dimension), held still during a run: values of no stage.
+    Outputs x, u; with a probe also "probe_gate" (the node touches it) and "probe_f" (its force, pfe), both
+    to be read at "probe_stage"."""
     ar = NodeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE)
     with ar:
         Xp = [ar.input(v, "x", ROM_STAGE) for v in X]
         Up = [ar.input(v, "u", ROM_STAGE) for v in U]
         Fp = [ar.input(v, "fe", FORCE_STAGE) for v in Fe]
-        new_x, new_u = node_kernel(ar, p, Xp, Up, Fp, step, _node_flags(p))
+        if probe is None:
+            new_x, new_u = node_kernel(ar, p, Xp, Up, Fp, step, _node_flags(p))
+            extra = {}
+        else:
+            regs = ProbeInputs(*[[ar.input(v, q, None) for v in vs]
+                                 for vs, q in zip(probe, ("x", "pdot", "x", "x"))])
+            new_x, new_u, (gate, force) = node_kernel(ar, p, Xp, Up, Fp, step, _node_flags(p), regs)
+            extra = {"probe_gate": gate.cond, "probe_f": force,
+                     "probe_stage": max([v.stage for v in force] + [gate.cond.stage])}
         stage = max(v.stage for v in new_x + new_u)
-    return Built(ar, stage, {"x": new_x, "u": new_u})
+    return Built(ar, stage, {"x": new_x, "u": new_u, **extra})
+
+
+def build_probe_sample(m, p, fmt, units, valid, name, P, Pprev) -> Built:
+    """The per-sample kernel: P (the sample) and Pprev (the held position) at stage 0 -> P, Pdot, Lo, Hi at
+    `stage` (P delayed to it)."""
+    ar = PipeArith(m, fmt, units, valid, name)
+    with ar:
+        Pi = [ar.input(v, "x", 0) for v in P]
+        Pdot, Lo, Hi = probe_sample_kernel(ar, p, Pi, [ar.input(v, "x", 0) for v in Pprev])
+        stage = max(v.stage for v in Pdot + Lo + Hi)
+    return Built(ar, stage, {"P": Pi, "Pdot": Pdot, "Lo": Lo, "Hi": Hi})
 
 
 def _dry_src(fields):
@@ -134,11 +160,24 @@ def dry_run_node(p, fmt, units, fe_bits: int) -> Built:
     D = p.dim
     xs, us = as_shape(fmt["x"]), as_shape(fmt["u"])
     from amaranth.hdl import signed
+    probe = None
+    if p.probe is not None:
+        probe = ProbeInputs(*[_signals(D, as_shape(fmt[q]), f"probe_{n}")
+                              for n, q in (("P", "x"), ("Pdot", "pdot"), ("Lo", "x"), ("Hi", "x"))])
     b = build_node(m, p, fmt, units, Signal(), "dry_nd", _dry_src(fields), _signals(D, xs, "x"), _signals(D, us, "u"),
-                   _signals(D, signed(fe_bits), "f"), Signal(32))
+                   _signals(D, signed(fe_bits), "f"), Signal(32), probe)
     b.ar.saturation_events()
     _finish(m)
     b.params = fields
+    return b
+
+
+def dry_run_probe_sample(p, fmt, units) -> Built:
+    m = Module()
+    xs = as_shape(fmt["x"])
+    b = build_probe_sample(m, p, fmt, units, Signal(), "dry_ps", _signals(p.dim, xs, "P"), _signals(p.dim, xs, "Pprev"))
+    b.ar.saturation_events()
+    _finish(m)
     return b
 
 

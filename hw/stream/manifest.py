@@ -1,5 +1,6 @@
 """The manifest of a streaming core (`rheo verilog --core stream`): units, formats, memories with their
-DP16KD budget, the schedule, the saturation flags and the host interface with the renumbering."""
+DP16KD budget, the schedule, the saturation flags, the host interface with the renumbering and, for a
+scene with a [probe], the probe port with its latency in cycles."""
 from __future__ import annotations
 
 from amaranth.hdl import Fragment, Shape
@@ -63,4 +64,28 @@ def manifest(bt, core, specialisation, top: str) -> dict:
         "saturation_flags": core.sat_quantities,
         "constant_saturations": core.const_saturations,
         "host_interface": host,
+        "probe_port": probe_port(core),
+    }
+
+
+def probe_port(core) -> dict | None:
+    """The probe port of a scene with a [probe] (hw/stream/probeport.py): its streams' word layout and the
+    latency from a sample's handshake to its force, in cycles (None without a probe)."""
+    pp = core.probe
+    if pp is None:
+        return None
+    D = core.cfg.dim
+    return {
+        "steps_per_sample_k": pp.k,
+        "latency_cycles": pp.latency,
+        "latency_formula": "sample kernel stages + run_cycles(k) + 2 (Control idle seen, output register)",
+        "sample_kernel_stages": pp.sample_stage,
+        "run_cycles_k": core.schedule.run_cycles(pp.k),
+        "probe_in": {"ports": "probe_in__valid, probe_in__ready, probe_in__payload",
+                     "payload": f"{D} words of {pp.x_bits} bits (format x, hardware units), word k at bits "
+                                f"{pp.x_bits} k .. {pp.x_bits} (k + 1) - 1"},
+        "force_out": {"ports": "force_out__valid, force_out__ready, force_out__payload",
+                      "payload": f"{D} words of {pp.f_bits} bits (format fprobe: the force on the probe of the "
+                                 f"sample's last step), then the contact count ({pp.count_bits} bits)"},
+        "port_off": "RUN through the host interface: the probe's registers hold the last sample",
     }

@@ -14,6 +14,11 @@ when the stream has passed the group's last contribution (hw/stream/schedule.py)
              runs into the next period, so two steps share the pipeline), floor, friction, mass, gravity
   `stage`    `store`: x, u written into the node store (bank q, word g)
 
+With a probe (the scene has one), the kernel reads the probe's registers (`probe_P`, `probe_Pdot`,
+`probe_Lo`, `probe_Hi`: constant during a run, hw/stream/probeport.py) and yields, at `probe_stage`, the
+node's probe force `probe_f` (pfe words, zero unless `probe_touch`), `probe_valid` (a node is there) and
+`probe_first` (its group is the step's first: the port's sum restarts).
+
 II = 1, no stalls; stages known at construction (a dry run), checked at elaboration.
 """
 from __future__ import annotations
@@ -23,11 +28,12 @@ from amaranth.hdl import Cat, Module, Mux, Signal, signed, unsigned
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from ..rtl_fixed import tree_sum
+from ..datapath import ProbeInputs
+from ..rtl_fixed import as_shape, tree_sum
 from .element import SAT_BITS
 from .kernels import FORCE_STAGE, ROM_STAGE, build_node
 from .lanerom import LaneRom
-from .nodeword import bits_for
+from .nodeword import bits_for, split_words
 
 FORCE_CHUNK = 4
 
@@ -55,6 +61,13 @@ class NodeLane(wiring.Component):
         }
         for k, _ in enumerate(self.quantities):
             members[f"sat{k}"] = Out(SAT_BITS)
+        self.probe_stage = cfg.node_dry.outputs.get("probe_stage")
+        if self.probe_stage is not None:
+            fmt, D = cfg.formats, cfg.dim
+            for reg, q in (("P", "x"), ("Pdot", "pdot"), ("Lo", "x"), ("Hi", "x")):
+                members[f"probe_{reg}"] = In(D * fmt[q].width)
+            members.update({"probe_valid": Out(1), "probe_first": Out(1), "probe_touch": Out(1),
+                            "probe_f": Out(D * fmt["pfe"].width)})
         super().__init__(members)
 
     def nodes(self) -> np.ndarray:
@@ -101,9 +114,23 @@ class NodeLane(wiring.Component):
             m.d.sync += f.eq(tree_sum(parts))
             F.append(f)
         X, U = cfg.word.unpack(self.node)
-        built = build_node(m, p, fmt, cfg.units, valid0, name, src, X, U, F, self.retire.step)
+        probe = None
+        if self.probe_stage is not None:
+            probe = ProbeInputs(*[split_words(getattr(self, f"probe_{reg}"), D, as_shape(fmt[q]))
+                                  for reg, q in (("P", "x"), ("Pdot", "pdot"), ("Lo", "x"), ("Hi", "x"))])
+        built = build_node(m, p, fmt, cfg.units, valid0, name, src, X, U, F, self.retire.step, probe)
         assert built.stage == self.stage, f"{name}: pipeline stage {built.stage}, the schedule has {self.stage}"
         ar, s = built.ar, built.stage
+        if probe is not None:
+            ps = built.outputs["probe_stage"]
+            assert ps == self.probe_stage, f"{name}: probe stage {ps}, the dry run has {self.probe_stage}"
+            first = Signal(name=f"{name}_first0")
+            m.d.comb += first.eq(self.retire.group == 0)
+            gate = built.outputs["probe_gate"]
+            touch = ar.delay(gate.sig, gate.stage, ps) & ar.valid_at(ps)
+            m.d.comb += [self.probe_valid.eq(ar.valid_at(ps)), self.probe_first.eq(ar.delay(first, 0, ps)),
+                         self.probe_touch.eq(touch),
+                         self.probe_f.eq(Cat(*[Mux(touch, ar.at(f, ps), 0) for f in built.outputs["probe_f"]]))]
         rom.build(m, f"{name}_rom", self.retire.group)
         m.d.comb += [self.store_en.eq(ar.valid_at(s)),
                      self.store_group.eq(ar.delay(self.retire.group, 0, s)),

@@ -94,3 +94,28 @@ def segment(value, index, width: int, count: int):
     if count == 1:
         return value[:width]
     return Array([value[k * width:(k + 1) * width] for k in range(count)])[index]
+
+
+def split_words(value, count: int, shape):
+    """`count` words of Amaranth shape `shape` packed in `value` (word k at bits k w .. (k + 1) w - 1), each
+    read as its shape reads it (signed or not)."""
+    w = shape.width
+    return [value[k * w:(k + 1) * w].as_signed() if shape.signed else value[k * w:(k + 1) * w]
+            for k in range(count)]
+
+
+def pack_ints(values, width: int) -> int:
+    """Raw integers into one word, value k at bits k width .. (k + 1) width - 1 (two's complement)."""
+    w = 0
+    for k, v in enumerate(values):
+        w |= (int(v) & ((1 << width) - 1)) << (k * width)
+    return w
+
+
+def unpack_ints(word: int, count: int, width: int, signed: bool = True) -> list[int]:
+    """The inverse of pack_ints."""
+    out = []
+    for k in range(count):
+        v = (int(word) >> (k * width)) & ((1 << width) - 1)
+        out.append(v - (1 << width) if signed and v >> (width - 1) else v)
+    return out

@@ -88,8 +88,8 @@ def _haptic(args, scene) -> int:
     if scene.probe is None:
         raise UsageError(f"scene '{scene.name}' has no [probe] table: --haptic pokes it")
     if args.backend not in HAPTIC_BACKENDS:
-        raise UsageError(f"--haptic measures {', '.join(HAPTIC_BACKENDS)} (the FPGA's probe port comes with the "
-                         f"streaming core), not '{args.backend}'")
+        raise UsageError(f"--haptic measures {', '.join(HAPTIC_BACKENDS)}, not '{args.backend}' (the FPGA's probe "
+                         f"port: --backend fpga --scene with a [probe], without --haptic)")
     if args.sizes or args.fmax_mhz is not None or args.lanes != 1 or args.node_lanes != 1:
         raise UsageError("--haptic takes --scene, --backend, --samples, --seconds and --preset")
     r = haptic_rates(scene, args.backend, args.samples, args.seconds, args.preset or "wide")
@@ -116,6 +116,10 @@ def _print_fpga(rows) -> None:
               + (f"{err:.1e} of the object size over {r['error_steps']} steps" if err is not None else "no run"))
         print(f"  Fmax {r['fmax_mhz']:.1f} MHz ({r['fmax_source']}) -> {r['steps_per_s']:.0f} steps/s, "
               f"{r['element_updates_per_s']:.3e} element-updates/s")
+        if "probe_latency_cycles" in r:
+            print(f"  probe port, k = {r['probe_k']}: {r['device_samples_per_s']:.0f} device samples/s, sample-in to "
+                  f"force-out {r['probe_latency_us']:.1f} us ({r['probe_latency_cycles']} cycles, measured "
+                  f"{', '.join(str(v) for v in r['probe_latency_measured'])})")
         print(f"  on this machine, same run: cpu backend ({r['cpu_threads']} thread(s)) "
               f"{r['cpu_steps_per_s']:.1f} steps/s, golden model {r['golden_steps_per_s']:.1f} steps/s; "
               f"FPGA / cpu = {r['ratio_to_cpu']:.2f}x, FPGA / golden = {r['ratio_to_golden']:.1f}x")

@@ -1,6 +1,7 @@
-"""`rheo haptic SCENE --trajectory traj.csv --backend golden|cpu|fixed --out run.npz`: drive a scene's
-probe along a trajectory, one device sample per CSV row (sim/haptic.py), and write a run file with the
-probe's position and force per sample."""
+"""`rheo haptic SCENE --trajectory traj.csv --backend golden|cpu|fixed|amaranth|icarus|verilator --out run.npz`:
+drive a scene's probe along a trajectory, one device sample per CSV row (sim/haptic.py; the core backends
+through the streaming core's probe port), and write a run file with the probe's position and force per
+sample."""
 from __future__ import annotations
 
 from .common import FORMAT_PRESETS, UsageError, check_frames_fit, load_system, positive_int, scene_argument
@@ -19,7 +20,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--trajectory", required=True, help="CSV file: a header, then one row per device sample")
     parser.add_argument("--backend", default="golden", choices=HAPTIC_BACKENDS, help="model to run (default: golden)")
     parser.add_argument("--preset", default="wide", choices=FORMAT_PRESETS,
-                        help="number-format preset of the fixed backend (default: wide)")
+                        help="number-format preset of the fixed and core backends (default: wide)")
     parser.add_argument("--every", type=positive_int,
                         help="record the state every N device samples (default: about 200 frames)")
     parser.add_argument("--out", required=True, help="output .npz file")
@@ -43,6 +44,7 @@ def run(args) -> int:
     every = args.every if args.every is not None else max(1, S // 200)
     check_frames_fit(system, S, every)
     with connect(system, args.backend, args.preset) as sim:
+        fixed_point = args.backend not in ("golden", "cpu")      # the bit-true model, or a core it converts for
         if args.backend == "fixed":
             warn_stagnation(sim.stepper)
         bar = _progress(S, system.name)
@@ -52,9 +54,12 @@ def run(args) -> int:
             if bar is not None:
                 bar.close()
         extra = {}
-        if args.backend == "fixed":
+        if fixed_point:
             extra = {k: v for k, v in sim.stepper.run_info().items()}
-            extra["probe_force_format"] = np.str_(str(sim.stepper.formats["fprobe"]))
+            bt = getattr(sim.stepper, "bt", sim.stepper)
+            extra["probe_force_format"] = np.str_(str(bt.formats["fprobe"]))
+            if args.backend != "fixed":                          # the probe port's cycles per sample
+                extra["probe_latency_cycles"] = np.array(sim.stepper.latency, np.int64)
     runfile.save(args.out, runfile.haptic_arrays(system, arrays, args.backend, extra))
     F = arrays["probe_force"]
     peak = float(np.linalg.norm(F, axis=1).max()) if S else 0.0

@@ -1,0 +1,250 @@
+"""The streaming core's probe port (hw/stream/probeport.py) equals the bit-true model bit for bit, in
+Amaranth's simulator: a poke trajectory streamed through `probe_in` with random gaps between samples and
+random back-pressure on `force_out`; every force word and contact count, and the node and element state
+at the end, against `BitTrue` (hold_probe, k steps, probe_raw); the measured latency from each sample's
+handshake to its force against the core's `probe_latency` (the manifest's). The same on the emitted
+Verilog on Icarus and Verilator through cocotb (sim/cocotb_core.py; marked hdl), and with RHEO_STREAM_ALL=1
+the built-in poke-2d-viscoelastic on Verilator.
+
+Amaranth's simulator runs the built-in poke scene at about 130 cycles a second (12 samples of 4,000
+cycles: 6 minutes), so this test takes tests/scenes/poke-tiny.toml (15 nodes, k = 4, 139 cycles a step at
+P = Q = 2), poked between two top nodes of different node lanes.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from amaranth.sim import Simulator
+
+from golden.scene import load_scene
+from hw.bittrue import BitTrue
+from hw.datapath import NotSupported
+from hw.stream import build_core, resolve_core
+from hw.stream.nodeword import pack_ints, unpack_ints
+from sim.host import HostDriver
+from sim.hwsim import AmaranthBus
+
+TINY = str(Path(__file__).resolve().parent / "scenes" / "poke-tiny.toml")
+
+
+def probe_model(scene, preset="wide", range_steps=None):
+    """The bit-true model of a poke scene, formats from its design poke (`range_steps` of it)."""
+    return BitTrue(load_scene(scene), preset, range_steps=range_steps)
+
+
+def trajectory(bt, n, down):
+    """`n` device samples (metres) straight down from the scene's initial probe position, `down` m apart."""
+    p0 = bt.system.probe.position
+    return [p0 - down * (s + 1) * np.eye(bt.system.dim)[-1] for s in range(n)]
+
+
+def expected(bt, positions):
+    """Per sample: the x words the host sends, then (force words, contacts) after its k steps; the end state."""
+    st = bt.initial_state()
+    words, outs = [], []
+    for p in positions:
+        bt.hold_probe(st, p)
+        words.append([int(v) for v in st.probe.P])
+        for _ in range(bt.params.probe["k"]):
+            bt.step(st)
+        outs.append(([int(v) for v in bt.probe_raw(st)], st.probe.contacts))
+    return words, outs, st
+
+
+def stream_samples(core, words, seed, read_state=True):
+    """Amaranth's simulator: load the initial state, stream `words` through probe_in with random gaps,
+    take force_out under random back-pressure. Returns ([(force words, contacts)], latencies, end state)."""
+    rng = np.random.default_rng(seed)
+    cfg, pp = core.cfg, core.probe
+    D = cfg.dim
+    sim = Simulator(core)
+    sim.add_clock(1e-8)
+    result = {}
+
+    async def bench(ctx):
+        drv = HostDriver.for_map(cfg.host_map, core.cycles_per_step, AmaranthBus(ctx, core.host))
+        init = cfg.init
+        await drv.load(init["X"], init["U"], init["A"], 0)
+        i_in, gap, t = 0, int(rng.integers(0, 8)), 0
+        hs, outs, lat = [], [], []
+        seen = False                       # force_out.valid seen for the sample in flight
+        pi, fo = core.probe_in, core.force_out
+        while len(outs) < len(words):
+            if i_in < len(words) and gap == 0:
+                ctx.set(pi.valid, 1)
+                ctx.set(pi.payload, pack_ints(words[i_in], pp.x_bits))
+            else:
+                ctx.set(pi.valid, 0)
+            ready = int(rng.random() < 0.3)
+            ctx.set(fo.ready, ready)
+            if ctx.get(pi.valid) and ctx.get(pi.ready):
+                hs.append(t)
+                i_in += 1
+                gap = int(rng.integers(0, 40))
+            elif gap:
+                gap -= 1
+            if ctx.get(fo.valid):
+                if not seen:
+                    lat.append(t - hs[len(outs)])
+                    seen = True
+                if ready:
+                    w = int(ctx.get(fo.payload))
+                    F = unpack_ints(w, D, pp.f_bits)
+                    outs.append((F, w >> (D * pp.f_bits)))
+                    seen = False
+            await ctx.tick()
+            t += 1
+        ctx.set(pi.valid, 0)
+        result.update(outs=outs, lat=lat, state=await drv.read_state() if read_state else None)
+
+    sim.add_testbench(bench)
+    sim.run()
+    return result["outs"], result["lat"], result["state"]
+
+
+@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
+def test_probe_port_streams_the_bit_true_forces():
+    """P = Q = 2 (15 nodes: the last group is short): 7 samples 0.3 mm apart, the last ones touching two
+    nodes of different node lanes (their forces summed across lanes)."""
+    bt = probe_model(TINY)
+    words, want, st = expected(bt, trajectory(bt, 7, 3e-4))
+    assert want[0][1] == 0 and want[-1][1] == 2          # the trajectory touches two nodes
+    sat = bt.sat.total
+    core = build_core(bt, 2, 2, "stream")
+    check_stream(bt, core, words, want, st, sat, seed=16)
+
+
+def check_stream(bt, core, words, want, st, sat, seed):
+    """stream_samples against the bit-true model's forces, end state and saturations; latency = manifest."""
+    outs, lat, (X, U, A, step, hw_sat, _) = stream_samples(core, words, seed=seed)
+    for n, (got, exp) in enumerate(zip(outs, want)):
+        assert got == exp, f"sample {n}: force words, contacts {got}, bit-true {exp}"
+    assert step == st.step
+    for k in range(len(X)):
+        assert np.array_equal(X[k], st.X[k]), f"x{k}"
+        assert np.array_equal(U[k], st.U[k]), f"u{k}"
+    assert np.array_equal(A, st.A)
+    assert hw_sat == sat
+    assert lat == [core.probe_latency] * len(words), (lat, core.probe_latency)
+
+
+def test_core_runs_of_a_probe_scene_without_the_port_are_refused_in_one_line():
+    """`rheo simulate --backend amaranth` (RUN only: nobody drives the port) and `rheo verilog --core phased`
+    refuse a probe scene in one line each."""
+    import subprocess
+    import sys
+    root = Path(__file__).resolve().parents[1]
+    for args, words in ((["simulate", "poke-2d-viscoelastic", "--backend", "amaranth", "--out", "unused.npz"],
+                         ("has a probe", "probe port", "--backend fixed")),
+                        (["verilog", "poke-2d-viscoelastic", "--core", "phased", "--out", "unused"],
+                         ("phased core has no probe port", "--core stream"))):
+        r = subprocess.run([sys.executable, "-m", "sim.cli", *args], cwd=root, capture_output=True, text=True)
+        lines = [ln for ln in r.stderr.splitlines() if ln.startswith("rheo: error:")]
+        assert r.returncode == 2 and len(lines) == 1, r.stderr[-2000:]
+        assert all(w in lines[0] for w in words), lines[0]
+
+
+def test_probe_scenes_go_to_the_streaming_core():
+    from hw.datapath import Params
+    from hw.units import HardwareUnits
+    system = load_scene("poke-2d-viscoelastic")
+    params = Params.of(system, HardwareUnits.of(system))
+    assert resolve_core(params, "auto") == resolve_core(params, "stream") == "stream"
+    with pytest.raises(NotSupported, match="phased core has no probe port"):
+        resolve_core(params, "phased")
+
+
+@pytest.fixture
+def fast_verilator_builds(monkeypatch):
+    if "OPT_FAST" not in os.environ.get("MAKEFLAGS", ""):
+        monkeypatch.setenv("MAKEFLAGS", (os.environ.get("MAKEFLAGS", "") + " OPT_FAST=-O0 OPT_SLOW=-O0 OPT_GLOBAL=-O0").strip())
+
+
+def check_verilog(simulator, scene, samples, down, P, Q, seed, range_steps=None):
+    """The emitted Verilog (`rheo verilog --core stream`) on a simulator through cocotb (sim/cocotb_core.py):
+    the same proof as check_stream, the latency against the manifest's."""
+    from sim.hdlsim import emit_core, run_job
+    bt = probe_model(scene, range_steps=range_steps)
+    words, want, st = expected(bt, trajectory(bt, samples, down))
+    assert want[0][1] == 0 and want[-1][1] > 0
+    core_dir, man, drv = emit_core(bt, P, Q, core="stream")
+    pm = man["probe_port"]
+    x_bits, f_bits = bt.formats["x"].width, bt.formats["fprobe"].width
+    init = bt.initial_state()
+    out = run_job(simulator, core_dir, drv, drv.load_words(init.X, init.U, init.A, 0), [],
+                  probe={"words": words, "x_bits": x_bits, "f_bits": f_bits, "seed": seed}, timeout_s=1800)
+    got = [(list(f), c) for f, c in zip(out["forces"], out["contacts"])]
+    for n, (g, e) in enumerate(zip(got, want)):
+        assert g == (list(e[0]), e[1]), f"{simulator}: sample {n}: {g}, bit-true {e}"
+    assert len(got) == len(want)
+    X, U, A, step, sat, _ = out["frames"][-1]
+    assert step == st.step
+    for k in range(bt.system.dim):
+        assert np.array_equal(X[k], st.X[k]), f"{simulator}: x{k}"
+        assert np.array_equal(U[k], st.U[k]), f"{simulator}: u{k}"
+    assert np.array_equal(A, st.A)
+    assert sat == bt.sat.total
+    assert out["latency"] == [pm["latency_cycles"]] * samples, (out["latency"], pm["latency_cycles"])
+    return pm
+
+
+@pytest.mark.hdl
+@pytest.mark.parametrize("simulator", ["icarus", "verilator"])
+def test_probe_port_verilog(simulator, fast_verilator_builds):
+    check_verilog(simulator, TINY, 7, 3e-4, 2, 2, seed=7)
+
+
+@pytest.mark.hdl
+@pytest.mark.skipif(not os.environ.get("RHEO_STREAM_ALL"), reason="5 minutes on Verilator: RHEO_STREAM_ALL=1")
+def test_probe_port_verilog_builtin_poke_scene(fast_verilator_builds):
+    """The built-in poke-2d-viscoelastic (153 nodes, k = 10, P = Q = 2: 3,988 cycles a sample) on Verilator:
+    12 samples 0.125 mm apart (4x the design poke's speed, formats of its first 600 steps): 1 mm of air,
+    then contact. With RHEO_STREAM_ALL=1 (as tests/test_stream_hdl.py's long set): about 5 minutes."""
+    pm = check_verilog("verilator", "poke-2d-viscoelastic", 12, 1.25e-4, 2, 2, seed=3, range_steps=600)
+    assert pm["steps_per_sample_k"] == 10
+
+
+@pytest.mark.hdl
+@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
+def test_probe_scene_verilog_has_the_port_and_passes_verilator_lint(tmp_path):
+    """`rheo verilog` of a probe scene: the streams on the top, the manifest's latency = the core's."""
+    import subprocess
+    from hw import emit
+    from sim.simulators import find_verilator
+    bt = probe_model(TINY)
+    man = emit.write(bt, tmp_path, 2, 2, core="stream")
+    text = (tmp_path / man["verilog"]).read_text()
+    for port in ("probe_in__valid", "probe_in__ready", "probe_in__payload", "force_out__valid", "force_out__ready",
+                 "force_out__payload"):
+        assert f" {port}" in text, port
+    pm = man["probe_port"]
+    assert pm["latency_cycles"] == build_core(bt, 2, 2, "stream").probe_latency == \
+        pm["sample_kernel_stages"] + pm["run_cycles_k"] + 2
+    assert "probe_port" in {u["unit"] for u in man["units_present"]}
+    r = subprocess.run([find_verilator(), "--lint-only", "-Wno-WIDTH", "--top-module", man["top"],
+                        str(tmp_path / man["verilog"])], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-3000:]
+
+
+@pytest.mark.hdl
+@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
+def test_bench_fpga_states_the_probe_ports_latency_and_sample_rate(fast_verilator_builds):
+    """`rheo bench --backend fpga --scene` of a probe scene: samples through the port on Verilator, the
+    measured latency = the manifest's, in microseconds at Fmax, and the device samples per second."""
+    import json
+    import subprocess
+    import sys
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, "-m", "sim.cli", "bench", "--backend", "fpga", "--scene", TINY, "--preset", "wide",
+                        "--lanes", "2", "--node-lanes", "2", "--fmax-mhz", "50", "--seconds", "0.2", "--json"],
+                       cwd=root, capture_output=True, text=True, timeout=3600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    row = json.loads(r.stdout)["results"][0]
+    L = row["probe_latency_cycles"]
+    assert row["probe_k"] == 4 and row["probe_latency_measured"] == [L, L]
+    assert L == build_core(probe_model(TINY), 2, 2, "stream").probe_latency
+    assert row["probe_latency_us"] == pytest.approx(L / 50.0, rel=1e-12)
+    assert row["device_samples_per_s"] == pytest.approx(50e6 / (L + 1), rel=1e-12)
