@@ -61,6 +61,10 @@ HostSignature = wiring.Signature({
 })
 
 
+PHASED_NO_PROBE = ("the phased core has no probe port: a scene with a [probe] runs on the streaming core "
+                   "(--core stream or auto)")
+
+
 @dataclass
 class CoreConfig:
     """Everything the core is built from: the scene's datapath parameters, formats, function units,
@@ -77,7 +81,6 @@ class CoreConfig:
             if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 64:
                 raise BadArgument(f"{name} must be an integer in 1..64, got {v!r}")
         if self.params.probe is not None:
-            from .stream import PHASED_NO_PROBE
             raise NotSupported(PHASED_NO_PROBE)
 
     @classmethod

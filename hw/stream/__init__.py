@@ -27,10 +27,6 @@ Modules, one concept each (the first two without Amaranth):
 from golden.errors import BadArgument
 
 CORES = ("phased", "stream")
-PHASED_NO_PROBE = ("the phased core has no probe port: a scene with a [probe] runs on the streaming core "
-                   "(--core stream or auto)")
-
-
 def resolve_core(params, core: str = "auto") -> str:
     """The core a scene gets: "auto" is the streaming core unless the scene has collisions (their pairs
     are not local), which the phased core (hw/core.py) runs; asking for "stream" on such a scene fails
@@ -43,6 +39,7 @@ def resolve_core(params, core: str = "auto") -> str:
             raise NotSupported("a scene with a [probe] and collisions runs on no core: the probe port is the "
                                "streaming core's, collisions the phased core's")
         if core == "phased":
+            from ..core import PHASED_NO_PROBE
             raise NotSupported(PHASED_NO_PROBE)
         return "stream"
     if core == "auto":
