@@ -95,9 +95,7 @@ class StreamCore(wiring.Component):
         """The lanes' and the control's ROMs: widths from the dry runs' per-item fields."""
         cfg, sch = self.cfg, self.schedule
         wb, qb = bits_for(sch.window_groups), bits_for(cfg.node_lanes)
-        out = []
-        el_bits = 2 * (wb + qb + 1) + sum(b for _, b in cfg.element_dry.params)
-        out += [ram_record(f"el{lane.lane}_rom", el_bits, lane.depth) for lane in self.elements]
+        out = []                  # the element lanes' ROMs are in their rams()
         if self.pairs:
             pr_bits = (cfg.dim + 1) * (wb + qb + 1) + sum(b for _, b in cfg.pair_dry.params)
             out += [ram_record(f"pr{lane.lane}_rom", pr_bits, lane.depth) for lane in self.pairs]

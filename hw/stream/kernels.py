@@ -45,6 +45,7 @@ class Built:
     stage: int                 # contribution (element, pair) or result (node) stage
     outputs: dict              # kind-specific values (see the build functions)
     params: list = None        # dry runs: the per-item ROM fields the kernel asked for, (name, bits)
+    param_values: dict = None  # dry runs of element and pair kernels: name -> (shape, raw values of every item)
 
     @property
     def quantities(self) -> list[str]:
@@ -93,10 +94,12 @@ def build_node(m, p, fmt, units, valid, name, src, X, U, Fe, step) -> Built:
     return Built(ar, stage, {"x": new_x, "u": new_u})
 
 
-def _dry_src(fields):
+def _dry_src(fields, values=None):
     def src(q, raw, shape):
         sig = Signal(shape, name=f"dry_{q}")
         fields.append((q, len(sig)))
+        if values is not None:
+            values[q] = (shape, np.asarray(raw))
         return sig
     return src
 
@@ -106,14 +109,14 @@ def _finish(m):
 
 
 def dry_run_element(p, fmt, units) -> Built:
-    m, fields = Module(), []
+    m, fields, values = Module(), [], {}
     D = p.dim
     xs, us = as_shape(fmt["x"]), as_shape(fmt["u"])
-    b = build_element(m, p, fmt, units, Signal(), "dry_el", _dry_src(fields), Signal(as_shape(fmt["a"])),
+    b = build_element(m, p, fmt, units, Signal(), "dry_el", _dry_src(fields, values), Signal(as_shape(fmt["a"])),
                       _signals(D, xs, "xi"), _signals(D, xs, "xj"), _signals(D, us, "ui"), _signals(D, us, "uj"))
     b.ar.saturation_events()
     _finish(m)
-    b.params = fields
+    b.params, b.param_values = fields, values
     return b
 
 
