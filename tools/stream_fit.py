@@ -1,7 +1,9 @@
 """Block RAM budget of the streaming core against mesh size (a model from the cores' own memory
-inventories, StreamCore.memories(), plus the function units' ROMs that Yosys infers): which squares and
-boxes fit the 208 DP16KD of an LFE5U-85F. Formats come from the 1e4-element mesh (they hardly depend on
-its size), so no range analysis of the large meshes is needed.
+inventories, StreamCore.memories(), plus the function units' ROMs that Yosys infers, planned as
+hw/stream/bram.py plans a BlockRam: 12 per element lane under medium, 6 under narrow; Yosys measured 11
+per lane on square:1000 medium): which squares and boxes fit the 208 DP16KD of an LFE5U-85F. Formats come
+from the 1e4-element mesh (they hardly depend on its size), so no range analysis of the large meshes is
+needed.
 
     python tools/stream_fit.py square 6 2 narrow 10000 20000 30000 ...
 """
@@ -13,7 +15,14 @@ import warnings
 import numpy as np
 
 warnings.filterwarnings("ignore")
-UNIT_ROM_BLOCKS = {2: 5, 3: 5}      # per element lane (1/sqrt seeds, Phi and Psi tables): 30 for 6 lanes (Yosys, square:10000)
+
+
+def unit_rom_blocks(cfg) -> int:
+    """DP16KD of one element lane's function-unit ROMs (1/sqrt table, Phi and Psi tables), from the
+    element kernel's dry run."""
+    from hw.stream.bram import plan_blocks
+    return sum(rows * cols for *_, rows, cols in
+               (plan_blocks(mem["width"], mem["depth"]) for mem in cfg.element_dry.ar.memories))
 
 
 def inventory(kind, n, P, Q, preset, fmt_cache={}):
@@ -28,12 +37,14 @@ def inventory(kind, n, P, Q, preset, fmt_cache={}):
     bt = BitTrue(system, preset, formats=fmt_cache[(kind, preset)])
     core = StreamCore(StreamConfig.of(bt, P, Q))
     mems = core.memories()
-    blocks = sum(m["dp16kd"] for m in mems) + P * UNIT_ROM_BLOCKS[system.dim]
+    units = P * unit_rom_blocks(core.cfg)
+    blocks = sum(m["dp16kd"] for m in mems) + units
     sch = core.schedule
     return dict(elements=system.n_elements, nodes=system.n_nodes, bandwidth=sch.bandwidth, T=sch.period,
                 C=sch.slots, window_groups=sch.window_groups, dp16kd=blocks,
-                by_kind={k: sum(m["dp16kd"] for m in mems if m["name"].startswith(k))
-                         for k in ("store", "window", "ring", "runsum", "el", "nd", "fill", "retire")})
+                by_kind={**{k: sum(m["dp16kd"] for m in mems if m["name"].startswith(k))
+                            for k in ("store", "window", "ring", "runsum", "el", "nd", "fill", "retire")},
+                         "units": units})
 
 
 if __name__ == "__main__":
