@@ -37,14 +37,14 @@ def inventory(kind, n, P, Q, preset, fmt_cache={}):
     bt = BitTrue(system, preset, formats=fmt_cache[(kind, preset)])
     core = StreamCore(StreamConfig.of(bt, P, Q))
     mems = core.memories()
-    units = P * unit_rom_blocks(core.cfg)
+    units = sum(lane.tables is None for lane in core.elements) * unit_rom_blocks(core.cfg)    # unshared tables
     blocks = sum(m["dp16kd"] for m in mems) + units
     sch = core.schedule
     return dict(elements=system.n_elements, nodes=system.n_nodes, bandwidth=sch.bandwidth, T=sch.period,
                 C=sch.slots, window_groups=sch.window_groups, dp16kd=blocks,
-                by_kind={**{k: sum(m["dp16kd"] for m in mems if m["name"].startswith(k))
+                by_kind={**{k: sum(m["dp16kd"] for m in mems if m["name"].startswith(k) and "_tables." not in m["name"])
                             for k in ("store", "window", "ring", "runsum", "el", "nd", "fill", "retire")},
-                         "units": units})
+                         "tables": units + sum(m["dp16kd"] for m in mems if "_tables." in m["name"])})
 
 
 if __name__ == "__main__":

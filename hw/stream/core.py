@@ -37,6 +37,7 @@ from .nodeword import bits_for, delay, segment
 from .pair import PairLane
 from .saturation import SaturationCounter
 from .store import NodeStore
+from .tables import TablePair
 from .window import NodeWindow
 
 
@@ -52,6 +53,8 @@ class StreamCore(wiring.Component):
         self.control = Control(sch, ram)
         self.store = NodeStore(word, Q, sch.groups, self._store_init(), ram)
         self.elements = [ElementLane(cfg, lane) for lane in range(P)]
+        for k in range(0, P - 1, 2):      # lanes 2k and 2k + 1 share the function units' tables
+            self.elements[k].tables, self.elements[k + 1].tables = TablePair(ram).sides
         self.pairs = [PairLane(cfg, lane) for lane in range(P)] if cfg.n_pairs else []
         reads = 2 * P + (D + 1) * len(self.pairs)
         self.window = NodeWindow(word, Q, sch.window_groups, reads, 1, ram)

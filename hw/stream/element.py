@@ -14,7 +14,9 @@ Item k of the element stream runs in lane k % P at slot k // P of every step (hw
              lane's ForceRing (`contrib_lo`), the higher node's to its RunSum (`contrib_hi`: the stream is
              sorted by higher node, so a lane's contributions to it come in runs; hw/stream/forcering.py)
 
-II = 1, no stalls; the stages are known at construction (a dry run) and checked at elaboration. While
+The function units' ROMs are the lane's own, or shared with the next lane (`tables`, a side of a
+hw/stream/tables.py TablePair that the core assigns; the lane of side 0 holds them and lists them in its
+`rams()`). II = 1, no stalls; the stages are known at construction (a dry run) and checked at elaboration. While
 idle, the host reads or writes a word of the a memory (`host_*`, `host_rdata` two cycles later). `sats`:
 the lane's saturation counts per quantity (`quantities`), PipeArith's `saturation_events`.
 """
@@ -67,9 +69,13 @@ class ElementLane(wiring.Component):
             members[f"sat{k}"] = Out(SAT_BITS)
         super().__init__(members)
         self.rom = self._rom()
+        self.tables = None               # the function units' ROMs: the lane's own, or a TablePair side
 
     def rams(self) -> list[dict]:
-        return [ram_record(f"el{self.lane}_a", self.a_bits, self.depth)] + self.rom.records(f"el{self.lane}_rom")
+        out = [ram_record(f"el{self.lane}_a", self.a_bits, self.depth)] + self.rom.records(f"el{self.lane}_rom")
+        if self.tables is not None and self.tables.side == 0:
+            out += self.tables.pair.records(f"el{self.lane}_tables", self.cfg.element_dry.ar.memories)
+        return out
 
     def _rom(self) -> LaneRom:
         """The lane's ROM (dictionary-encoded, hw/stream/lanerom.py): the window groups and banks of nodes
@@ -130,7 +136,9 @@ class ElementLane(wiring.Component):
         (Xi, Ui), (Xj, Uj) = word.unpack(self.ring_i.data), word.unpack(self.ring_j.data)
         a_shape = as_shape(fmt["a"])
         a_raw = a_mem.r_data.as_signed() if a_shape.signed else a_mem.r_data
-        built = build_element(m, p, fmt, cfg.units, valid0, name, src, a_raw, Xi, Xj, Ui, Uj)
+        if self.tables is not None:
+            self.tables.reset()
+        built = build_element(m, p, fmt, cfg.units, valid0, name, src, a_raw, Xi, Xj, Ui, Uj, self.tables)
         assert built.stage == self.stage, f"{name}: pipeline stage {built.stage}, the schedule has {self.stage}"
         assert built.outputs["state_stage"] == self.state_stage
         ar, s = built.ar, built.stage

@@ -56,8 +56,8 @@ def _signals(n, shape, name):
     return [Signal(shape, name=f"{name}{k}") for k in range(n)]
 
 
-def build_element(m, p, fmt, units, valid, name, src, A, Xi, Xj, Ui, Uj) -> Built:
-    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE)
+def build_element(m, p, fmt, units, valid, name, src, A, Xi, Xj, Ui, Uj, tables=None) -> Built:
+    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, tables=tables)
     with ar:
         a_in = ar.input(A, "a", ROM_STAGE)
         node = lambda vs, q: [ar.input(v, q, NODE_STAGE) for v in vs]

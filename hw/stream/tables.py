@@ -1,0 +1,58 @@
+"""`TablePair`: the function units' ROMs (1/sqrt table, Phi and Psi tables) shared by two element lanes.
+
+The tables are read-only and the same in every lane, and a DP16KD has two read ports: lanes 2k and 2k + 1
+read one copy, the first on port 1 (`r_addr`), the second on port 2 (`r2_addr`) of a two-port BlockRam
+(hw/stream/bram.py; "ecp5": DP16KD in true dual-port mode with both output registers). The latency is
+the units' own (address to registered word: two cycles), so the pipelines and their results do not
+change. Cost: each table once per pair of lanes, in 18- or 9-bit blocks (true dual-port mode has no
+36-bit width): under medium 14 DP16KD per pair instead of 12 per lane.
+
+Each unit asks `side.read(...)` for its tables in elaboration order; the two lanes run the same kernel,
+so their n-th requests are the same table. The lane of side 0 elaborates first (the core adds it first)
+and builds each ROM in its unit; side 1's n-th request takes port 2 of side 0's n-th ROM. `reset()` (at
+each elaboration of the lane of side 0) starts a new set, so a core can be elaborated more than once.
+"""
+from __future__ import annotations
+
+from .bram import BlockRam, ram_record
+
+
+class TablePair:
+    def __init__(self, ram: str):
+        self.ram = ram
+        self.roms: list[BlockRam] = []
+        self.sides = (TableSide(self, 0), TableSide(self, 1))
+
+    def records(self, name: str, memories) -> list[dict]:
+        """The inventory entries of the shared ROMs, from a lane's unit memories (name, depth, width)."""
+        return [ram_record(f"{name}.{mem['name']}", mem["width"], mem["depth"], read_ports=2) for mem in memories]
+
+
+class TableSide:
+    """One lane's view of a TablePair: `read` as hw/rtl_funcunits.py `_Pipe.table` calls it."""
+
+    def __init__(self, pair: TablePair, side: int):
+        self.pair, self.side, self.n = pair, side, 0
+
+    def reset(self):
+        self.n = 0
+        if self.side == 0:
+            self.pair.roms = []
+
+    def read(self, m, name: str, width: int, words: list[int], addr):
+        """ROM `name` of `width` bits and `words` read at `addr` (in unit module `m`): its registered word
+        two cycles later."""
+        n, self.n = self.n, self.n + 1
+        if self.side == 0:
+            rom = BlockRam(width, len(words), init=words, writable=False, read_ports=2, ram=self.pair.ram)
+            self.pair.roms.append(rom)
+            m.submodules[f"shared_{name}"] = rom
+            m.d.comb += rom.r_addr.eq(addr)
+            return rom.r_data
+        if n >= len(self.pair.roms):
+            raise AssertionError("a shared table's second lane elaborated before its first")
+        rom = self.pair.roms[n]
+        mask = (1 << width) - 1
+        assert rom.width == width and rom.init == [w & mask for w in words], f"shared table {name}: lanes differ"
+        m.d.comb += rom.r2_addr.eq(addr)
+        return rom.r2_data
