@@ -73,11 +73,13 @@ class _Pipe:
 
     def table(self, tables, name, layout, init, addr):
         """ROM `name` (`layout`, words `init`) read at `addr`: its word two cycles later, in a register.
-        Its own Memory and a register, or a port of a shared ROM (`tables.read`)."""
+        A port of a shared ROM (`tables.read`, if it shares this one), or its own Memory and a register."""
         if tables is not None:
             words = [Const.cast(layout.const(v) if isinstance(v, dict) else Const(v, layout)).value for v in init]
             width = layout.size if isinstance(layout, data.Layout) else layout.width
-            return tables.read(self.m, name, width, words, addr)
+            shared = tables.read(self.m, name, width, words, addr)
+            if shared is not None:
+                return shared
         rom = Memory(shape=layout, depth=len(init), init=init)
         self.m.submodules[name] = rom
         rp = rom.read_port(domain="sync")

@@ -20,7 +20,7 @@ never use them. Cost: `bits` per slot (the sum of plain widths and index widths)
 from __future__ import annotations
 
 import numpy as np
-from amaranth.hdl import Const, Signal
+from amaranth.hdl import Const, Mux, Signal
 
 from .bram import BlockRam, ram_record
 
@@ -141,9 +141,13 @@ class LaneRom:
             ib = _index_bits(len(tuples))
             index = rom.r_data[off:off + ib]
             off += ib
-            with m.Switch(index):               # the decode: constants by index, one LUT4 per bit
-                for i, t in enumerate(tuples):
-                    with m.Case(i):
-                        m.d.comb += [self.fields[k][1].eq(Const(v, len(self.fields[k][1])))
-                                     for k, v in zip(members, t)]
+            # the decode: constants chosen by the index, one LUT4 per bit after synthesis; a chain of
+            # Mux, not a Switch, so that the Verilog is continuous assignments (a process that only wakes
+            # on a change of its input would leave X in event-driven simulators until the index changes)
+            for j, k in enumerate(members):
+                sig = self.fields[k][1]
+                value = Const(tuples[-1][j], len(sig))
+                for i in range(len(tuples) - 2, -1, -1):
+                    value = Mux(index == i, Const(tuples[i][j], len(sig)), value)
+                m.d.comb += sig.eq(value)
         return rom

@@ -4,8 +4,11 @@ The tables are read-only and the same in every lane, and a DP16KD has two read p
 read one copy, the first on port 1 (`r_addr`), the second on port 2 (`r2_addr`) of a two-port BlockRam
 (hw/stream/bram.py; "ecp5": DP16KD in true dual-port mode with both output registers). The latency is
 the units' own (address to registered word: two cycles), so the pipelines and their results do not
-change. Cost: each table once per pair of lanes, in 18- or 9-bit blocks (true dual-port mode has no
-36-bit width): under medium 14 DP16KD per pair instead of 12 per lane.
+change. A table is shared when one two-port copy takes fewer blocks than two one-port copies
+(`shares`): true dual-port mode has no 36-bit width, so a table of at most 512 words stays in each lane
+(under medium the Phi tables, 256 x 31 and 256 x 34; Yosys may put such small ROMs in logic), while the
+1/sqrt table (1024 x 35: 2 DP16KD instead of 4) and the Psi table (4096 x 34: 8 instead of 16) are
+shared. Cost under medium: 10 shared DP16KD per pair of lanes plus 2 per lane, 14 per pair instead of 24.
 
 Each unit asks `side.read(...)` for its tables in elaboration order; the two lanes run the same kernel,
 so their n-th requests are the same table. The lane of side 0 elaborates first (the core adds it first)
@@ -14,7 +17,13 @@ each elaboration of the lane of side 0) starts a new set, so a core can be elabo
 """
 from __future__ import annotations
 
-from .bram import BlockRam, ram_record
+from .bram import BlockRam, plan_blocks, ram_record
+
+
+def shares(width: int, depth: int) -> bool:
+    """One two-port copy of a width x depth table takes fewer DP16KD than two one-port copies."""
+    one, two = plan_blocks(width, depth), plan_blocks(width, depth, read_ports=2)
+    return two[2] * two[3] < 2 * one[2] * one[3]
 
 
 class TablePair:
@@ -25,7 +34,8 @@ class TablePair:
 
     def records(self, name: str, memories) -> list[dict]:
         """The inventory entries of the shared ROMs, from a lane's unit memories (name, depth, width)."""
-        return [ram_record(f"{name}.{mem['name']}", mem["width"], mem["depth"], read_ports=2) for mem in memories]
+        return [ram_record(f"{name}.{mem['name'].removeprefix('dry_el_')}", mem["width"], mem["depth"], read_ports=2)
+                for mem in memories if shares(mem["width"], mem["depth"])]
 
 
 class TableSide:
@@ -41,7 +51,9 @@ class TableSide:
 
     def read(self, m, name: str, width: int, words: list[int], addr):
         """ROM `name` of `width` bits and `words` read at `addr` (in unit module `m`): its registered word
-        two cycles later."""
+        two cycles later; None for a table not worth sharing (the unit builds its own)."""
+        if not shares(width, len(words)):
+            return None
         n, self.n = self.n, self.n + 1
         if self.side == 0:
             rom = BlockRam(width, len(words), init=words, writable=False, read_ports=2, ram=self.pair.ram)
