@@ -1,9 +1,10 @@
 """Block RAM budget of the streaming core against mesh size (a model from the cores' own memory
-inventories, StreamCore.memories(), plus the function units' ROMs that Yosys infers, planned as
-hw/stream/bram.py plans a BlockRam: 12 per element lane under medium, 6 under narrow; Yosys measured 11
-per lane on square:1000 medium): which squares and boxes fit the 208 DP16KD of an LFE5U-85F. Formats come
-from the 1e4-element mesh (they hardly depend on its size), so no range analysis of the large meshes is
-needed.
+inventories, StreamCore.memories(), which include the function-unit tables that pairs of element lanes
+share, plus each lane's own unit ROMs that Yosys infers, planned as hw/stream/bram.py plans a BlockRam:
+the two Phi tables, 2 DP16KD a lane under medium; unshared, all tables take 12 a lane under medium, 6
+under narrow): which squares and boxes fit the 208 DP16KD of an LFE5U-85F. Checked against Yosys on
+square:1000, P = Q = 2, medium: 74 modelled, 74 synthesised. Formats come from the 1e4-element mesh (they
+hardly depend on its size), so no range analysis of the large meshes is needed.
 
     python tools/stream_fit.py square 6 2 narrow 10000 20000 30000 ...
 """
