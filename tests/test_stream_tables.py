@@ -10,7 +10,7 @@ from amaranth.hdl import Module
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from hw.fixed import SQ, UQ, Saturations
+from hw.fixed import SQ, Saturations
 from hw.funcunits import RsqrtTable
 from hw.rtl_funcunits import RsqrtTableUnit
 from hw.stream.tables import TablePair, shares

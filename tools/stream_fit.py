@@ -13,8 +13,6 @@ from __future__ import annotations
 import sys
 import warnings
 
-import numpy as np
-
 warnings.filterwarnings("ignore")
 
 

@@ -33,7 +33,7 @@ from .element import ElementLane
 from .forcering import ForceRing, RunSum
 from .hostport import HostPort, HostSignature
 from .node import NodeLane
-from .nodeword import bits_for, delay, segment
+from .nodeword import delay, segment
 from .pair import PairLane
 from .saturation import SaturationCounter
 from .store import NodeStore
@@ -90,20 +90,16 @@ class StreamCore(wiring.Component):
         out = self.store.rams() + self.window.rams()
         for ring, info in zip(self.rings, self.cfg.rings):
             out += ring.rams(info.name)
-        for lane in self.elements:
+        for lane in self.elements + self.pairs:
             out += lane.rams()
         return out + self._roms()
 
     def _roms(self) -> list[dict]:
-        """The lanes' and the control's ROMs: widths from the dry runs' per-item fields."""
+        """The node lanes' and the control's ROMs (node lanes: widths from the dry run's per-item fields;
+        the element and pair lanes' ROMs are in their rams())."""
         cfg, sch = self.cfg, self.schedule
-        wb, qb = bits_for(sch.window_groups), bits_for(cfg.node_lanes)
-        out = []                  # the element lanes' ROMs are in their rams()
-        if self.pairs:
-            pr_bits = (cfg.dim + 1) * (wb + qb + 1) + sum(b for _, b in cfg.pair_dry.params)
-            out += [ram_record(f"pr{lane.lane}_rom", pr_bits, lane.depth) for lane in self.pairs]
         nd_bits = len(cfg.rings) + sum(b for _, b in cfg.node_dry.params)
-        out += [ram_record(f"nd{lane.q}_rom", max(1, nd_bits), sch.groups) for lane in self.nodes]
+        out = [ram_record(f"nd{lane.q}_rom", max(1, nd_bits), sch.groups) for lane in self.nodes]
         return out + [ram_record("fill_phases", 1, sch.period), ram_record("retire_phases", 1, sch.period)]
 
     def elaborate(self, platform):

@@ -121,14 +121,14 @@ def dry_run_element(p, fmt, units) -> Built:
 
 
 def dry_run_pair(p, fmt, units) -> Built:
-    m, fields = Module(), []
+    m, fields, values = Module(), [], {}
     D = p.dim
     xs, us = as_shape(fmt["x"]), as_shape(fmt["u"])
-    b = build_pair(m, p, fmt, units, Signal(), "dry_pr", _dry_src(fields), pair_kernel,
+    b = build_pair(m, p, fmt, units, Signal(), "dry_pr", _dry_src(fields, values), pair_kernel,
                    [_signals(D, xs, f"x{r}_") for r in range(D + 1)], [_signals(D, us, f"u{r}_") for r in range(D + 1)])
     b.ar.saturation_events()
     _finish(m)
-    b.params = fields
+    b.params, b.param_values = fields, values
     return b
 
 
