@@ -104,6 +104,7 @@ def test_two_port_rom_returns_both_words(ram, width, depth):
         assert (got[t + 1, 0], got[t + 1, 1]) == (init[a], init[b]), f"{ram} {width}x{depth}: cycle {t}"
 
 
+@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
 def test_two_port_plan_counts():
     assert plan_blocks(31, 256, read_ports=2) == (18, 1024, 1, 2)     # no 36-bit mode with two ports
     assert plan_blocks(34, 4096, read_ports=2)[2] * plan_blocks(34, 4096, read_ports=2)[3] == 8

@@ -16,9 +16,10 @@ Item k of the element stream runs in lane k % P at slot k // P of every step (hw
 
 The function units' ROMs are the lane's own, or shared with the next lane (`tables`, a side of a
 hw/stream/tables.py TablePair that the core assigns; the lane of side 0 holds them and lists them in its
-`rams()`). II = 1, no stalls; the stages are known at construction (a dry run) and checked at elaboration. While
-idle, the host reads or writes a word of the a memory (`host_*`, `host_rdata` two cycles later). `sats`:
-the lane's saturation counts per quantity (`quantities`), PipeArith's `saturation_events`.
+`rams()`). II = 1, no stalls; the stages are known at construction (a dry run) and checked at
+elaboration. While idle, the host reads or writes a word of the a memory (`host_*`, `host_rdata` two
+cycles later). `sats`: the lane's saturation counts per quantity (`quantities`), PipeArith's
+`saturation_events`.
 """
 from __future__ import annotations
 
@@ -116,7 +117,8 @@ class ElementLane(wiring.Component):
 
         rom = self.rom
         roles = [(rom.signal(f"{name}_g{r}"), rom.signal(f"{name}_b{r}")) for r in range(2)]
-        swap, first_lo, first_hi, last_hi = [rom.signal(f"{name}_{f}") for f in ("i_high", "first_lo", "first_hi", "last_hi")]
+        swap, first_lo, first_hi, last_hi = [rom.signal(f"{name}_{f}")
+                                             for f in ("i_high", "first_lo", "first_hi", "last_hi")]
 
         def src(q, raw, shape):
             sig = rom.signal(f"{name}_prm_{q}")
