@@ -17,11 +17,11 @@ warnings.filterwarnings("ignore")
 
 
 def unit_rom_blocks(lane) -> int:
-    """DP16KD of an element lane's own function-unit ROMs (1/sqrt table, Phi and Psi tables, from the
-    element kernel's dry run), those it does not share with another lane (hw/stream/tables.py)."""
+    """DP16KD of a lane's own function-unit ROMs (1/sqrt tables, Phi and Psi tables, from its kernel's dry
+    run), those it does not share with another lane (hw/stream/tables.py)."""
     from hw.stream.bram import plan_blocks
     from hw.stream.tables import shares
-    own = [mem for mem in lane.cfg.element_dry.ar.memories if lane.tables is None or not shares(mem["width"], mem["depth"])]
+    own = [mem for mem in lane.unit_memories() if lane.tables is None or not shares(mem["width"], mem["depth"])]
     return sum(rows * cols for *_, rows, cols in (plan_blocks(mem["width"], mem["depth"]) for mem in own))
 
 
@@ -37,7 +37,7 @@ def inventory(kind, n, P, Q, preset, fmt_cache={}):
     bt = BitTrue(system, preset, formats=fmt_cache[(kind, preset)])
     core = StreamCore(StreamConfig.of(bt, P, Q))
     mems = core.memories()
-    units = sum(unit_rom_blocks(lane) for lane in core.elements)
+    units = sum(unit_rom_blocks(lane) for lane in core.elements + core.pairs)
     blocks = sum(m["dp16kd"] for m in mems) + units
     sch = core.schedule
     return dict(elements=system.n_elements, nodes=system.n_nodes, bandwidth=sch.bandwidth, T=sch.period,

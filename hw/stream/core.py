@@ -37,7 +37,7 @@ from .nodeword import delay, segment
 from .pair import PairLane
 from .saturation import SaturationCounter
 from .store import NodeStore
-from .tables import TablePair
+from .tables import share as share_tables
 from .window import NodeWindow
 
 
@@ -53,9 +53,9 @@ class StreamCore(wiring.Component):
         self.control = Control(sch, ram)
         self.store = NodeStore(word, Q, sch.groups, self._store_init(), ram)
         self.elements = [ElementLane(cfg, lane) for lane in range(P)]
-        for k in range(0, P - 1, 2):      # lanes 2k and 2k + 1 share the function units' tables
-            self.elements[k].tables, self.elements[k + 1].tables = TablePair(ram).sides
+        share_tables(self.elements, ram)           # lanes 2k and 2k + 1 share the function units' tables
         self.pairs = [PairLane(cfg, lane) for lane in range(P)] if cfg.n_pairs else []
+        share_tables(self.pairs, ram)
         reads = 2 * P + (D + 1) * len(self.pairs)
         self.window = NodeWindow(word, Q, sch.window_groups, reads, 1, ram)
         fe = cfg.formats["fe"].width

@@ -32,6 +32,7 @@ from ..rtl_fixed import as_shape
 from .bram import BlockRam, ram_record
 from .forcering import ContributionSignature
 from .kernels import ROM_STAGE, build_element, first_flags, last_flags
+from . import tables
 from .lanerom import LaneRom
 from .nodeword import bits_for, delay
 from .window import NodeReadSignature
@@ -73,10 +74,12 @@ class ElementLane(wiring.Component):
         self.tables = None               # the function units' ROMs: the lane's own, or a TablePair side
 
     def rams(self) -> list[dict]:
-        out = [ram_record(f"el{self.lane}_a", self.a_bits, self.depth)] + self.rom.records(f"el{self.lane}_rom")
-        if self.tables is not None and self.tables.side == 0:
-            out += self.tables.pair.records(f"el{self.lane}_tables", self.cfg.element_dry.ar.memories)
-        return out
+        return ([ram_record(f"el{self.lane}_a", self.a_bits, self.depth)] + self.rom.records(f"el{self.lane}_rom")
+                + tables.records(self, f"el{self.lane}_tables"))
+
+    def unit_memories(self) -> list[dict]:
+        """The function units' memories (name, depth, width), from the dry run."""
+        return self.cfg.element_dry.ar.memories
 
     def _rom(self) -> LaneRom:
         """The lane's ROM (dictionary-encoded, hw/stream/lanerom.py): the window groups and banks of nodes

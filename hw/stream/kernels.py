@@ -68,8 +68,8 @@ def build_element(m, p, fmt, units, valid, name, src, A, Xi, Xj, Ui, Uj, tables=
                              "state_stage": new_a.stage if new_a is not None else 0})
 
 
-def build_pair(m, p, fmt, units, valid, name, src, kernel, X_roles, U_roles) -> Built:
-    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE)
+def build_pair(m, p, fmt, units, valid, name, src, kernel, X_roles, U_roles, tables=None) -> Built:
+    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, tables=tables)
     D = p.dim
     with ar:
         ins = [[ar.input(v, "x", NODE_STAGE) for v in X_roles[r]] for r in range(D + 1)]

@@ -12,6 +12,7 @@ k // P. Like an element lane with D + 1 roles (the vertex, then the facet's vert
              counts as the lane's contribution, so that a ring word's first contribution always writes),
              presented to the role's force ring (`contribs[r]`)
 
+The function units' tables are shared by pairs of pair lanes as by element lanes (hw/stream/tables.py).
 II = 1, no stalls; stages known at construction (a dry run), checked at elaboration.
 """
 from __future__ import annotations
@@ -24,6 +25,7 @@ from ..datapath import pair_kernel
 from .element import SAT_BITS, IssueSignature
 from .forcering import ContributionSignature
 from .kernels import ROM_STAGE, build_pair, first_flags
+from . import tables
 from .lanerom import LaneRom
 from .nodeword import bits_for, delay
 from .window import NodeReadSignature
@@ -48,9 +50,14 @@ class PairLane(wiring.Component):
             members[f"sat{k}"] = Out(SAT_BITS)
         super().__init__(members)
         self.rom = self._rom()
+        self.tables = None               # the function units' ROMs: the lane's own, or a TablePair side
 
     def rams(self) -> list[dict]:
-        return self.rom.records(f"pr{self.lane}_rom")
+        return self.rom.records(f"pr{self.lane}_rom") + tables.records(self, f"pr{self.lane}_tables")
+
+    def unit_memories(self) -> list[dict]:
+        """The function units' memories (name, depth, width), from the dry run."""
+        return self.cfg.pair_dry.ar.memories
 
     def _rom(self) -> LaneRom:
         """Per role the window group, bank and first flag of its node; the kernel's per-pair parameters."""
@@ -93,7 +100,9 @@ class PairLane(wiring.Component):
             assert len(sig) == len(Signal(shape)), (q, len(sig), shape)
             return sig
 
-        built = build_pair(m, p, fmt, cfg.units, valid0, name, src, pair_kernel, X, U)
+        if self.tables is not None:
+            self.tables.reset()
+        built = build_pair(m, p, fmt, cfg.units, valid0, name, src, pair_kernel, X, U, self.tables)
         assert built.stage == self.stage, f"{name}: pipeline stage {built.stage}, the schedule has {self.stage}"
         ar, s = built.ar, built.stage
         rom.build(m, f"{name}_rom", slot)

@@ -1,7 +1,7 @@
-"""`TablePair`: the function units' ROMs (1/sqrt table, Phi and Psi tables) shared by two element lanes.
+"""`TablePair`: the function units' ROMs (1/sqrt table, Phi and Psi tables) shared by two lanes of a kind.
 
-The tables are read-only and the same in every lane, and a DP16KD has two read ports: lanes 2k and 2k + 1
-read one copy, the first on port 1 (`r_addr`), the second on port 2 (`r2_addr`) of a two-port BlockRam
+The tables are read-only and the same in every lane of a kind (element lanes; pair lanes), and a DP16KD
+has two read ports: lanes 2k and 2k + 1 (`share`) read one copy, the first on port 1 (`r_addr`), the second on port 2 (`r2_addr`) of a two-port BlockRam
 (hw/stream/bram.py; "ecp5": DP16KD in true dual-port mode with both output registers). The latency is
 the units' own (address to registered word: two cycles), so the pipelines and their results do not
 change. A table is shared when one two-port copy takes fewer blocks than two one-port copies
@@ -26,16 +26,25 @@ def shares(width: int, depth: int) -> bool:
     return two[2] * two[3] < 2 * one[2] * one[3]
 
 
+def share(lanes, ram: str):
+    """Give lanes 2k and 2k + 1 the two sides of a TablePair (their `tables`); an odd last lane keeps its own."""
+    for k in range(0, len(lanes) - 1, 2):
+        lanes[k].tables, lanes[k + 1].tables = TablePair(ram).sides
+
+
+def records(lane, name: str) -> list[dict]:
+    """The inventory entries of the tables a lane holds for its pair (side 0; none otherwise)."""
+    if lane.tables is None or lane.tables.side:
+        return []
+    return [ram_record(f"{name}.{mem['name'].split('_', 2)[2]}", mem["width"], mem["depth"], read_ports=2)
+            for mem in lane.unit_memories() if shares(mem["width"], mem["depth"])]
+
+
 class TablePair:
     def __init__(self, ram: str):
         self.ram = ram
         self.roms: list[BlockRam] = []
         self.sides = (TableSide(self, 0), TableSide(self, 1))
-
-    def records(self, name: str, memories) -> list[dict]:
-        """The inventory entries of the shared ROMs, from a lane's unit memories (name, depth, width)."""
-        return [ram_record(f"{name}.{mem['name'].removeprefix('dry_el_')}", mem["width"], mem["depth"], read_ports=2)
-                for mem in memories if shares(mem["width"], mem["depth"])]
 
 
 class TableSide:
