@@ -118,12 +118,13 @@ class PipeArith(Arith):
 
     `fmt`: quantity -> Shape (hw/formats.py FormatSet); `units`: the bit-true function unit models by
     name ("inv_l", ..., "phi", "psi"); `valid`: the stage-0 valid bit; `param_source(q, array)` returns the
-    Amaranth value (valid at stage `param_stage`) of a per-item parameter, or of a per-item flag.
+    Amaranth value (valid at stage `param_stage`) of a per-item parameter, or of a per-item flag;
+    `tables`: where the function units' ROMs come from (None: each unit its own; hw/stream/tables.py).
     """
 
     def __init__(self, m: Module, fmt, units: dict, valid: Value, name: str, param_source=None,
-                 param_stage: int = 1):
-        self.m, self.fmt, self.units, self.name = m, fmt, units, name
+                 param_stage: int = 1, tables=None):
+        self.m, self.fmt, self.units, self.name, self.tables = m, fmt, units, name, tables
         self.param_source, self.param_stage = param_source, param_stage
         self._valid = {0: valid}
         self._delays = {}
@@ -323,7 +324,7 @@ class PipeArith(Arith):
         from .rtl_funcunits import RsqrtTableUnit, RsqrtUnit
         s = self._s(a)
         model = self.units[q]
-        unit = RsqrtTableUnit(model) if isinstance(model, RsqrtTable) else RsqrtUnit(model)
+        unit = (RsqrtTableUnit if isinstance(model, RsqrtTable) else RsqrtUnit)(model, self.tables)
         self._add_unit(self._name("rsqrt_" + q), unit)
         self.m.d.comb += [unit.i.payload.eq(self.at(a, s)), unit.i.valid.eq(self.valid_at(s))]
         out = s + unit.latency
@@ -346,7 +347,7 @@ class PipeArith(Arith):
             raise ValueError(f"inverse table '{curve.name}': {len(curve.outputs)} outputs named, the unit "
                              f"has {len(model.out_shapes)}")
         s = self._s(mag)
-        unit = InverseTableUnit(model)
+        unit = InverseTableUnit(model, self.tables)
         self._add_unit(self._name("inverse_" + curve.name), unit)
         self.m.d.comb += [unit.i.payload.eq(self.at(mag, s)), unit.i.valid.eq(self.valid_at(s))]
         out = s + unit.latency

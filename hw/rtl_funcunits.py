@@ -16,11 +16,12 @@ a product by a constant, the inverse table's scale K_raw, is shifts and adds, `c
 they take few adders), and every rounding (a product plus 2^(s-1), then an arithmetic right shift by s) one more, so that no
 cycle holds a multiplier and a wide adder. ROMs are
 `amaranth.lib.memory.Memory` instances with synchronous read ports (block RAM) whose data is registered
-before any arithmetic.
+before any arithmetic, or, with `tables` (hw/stream/tables.py), a read port of a ROM that another unit of
+the same model shares (two ports of one block RAM, the same two cycles from address to registered word).
 """
 from __future__ import annotations
 
-from amaranth.hdl import Cat, Const, Module, Mux, Signal, signed, unsigned
+from amaranth.hdl import Cat, Const, Module, Mux, Signal, Value, signed, unsigned
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
@@ -69,6 +70,21 @@ class _Pipe:
         for j in range(cycles):
             value = self.reg(value, name=None if name is None else f"{name}_d{j}")
         return value
+
+    def table(self, tables, name, layout, init, addr):
+        """ROM `name` (`layout`, words `init`) read at `addr`: its word two cycles later, in a register.
+        A port of a shared ROM (`tables.read`, if it shares this one), or its own Memory and a register."""
+        if tables is not None:
+            words = [Const.cast(layout.const(v) if isinstance(v, dict) else Const(v, layout)).value for v in init]
+            width = layout.size if isinstance(layout, data.Layout) else layout.width
+            shared = tables.read(self.m, name, width, words, addr)
+            if shared is not None:
+                return shared
+        rom = Memory(shape=layout, depth=len(init), init=init)
+        self.m.submodules[name] = rom
+        rp = rom.read_port(domain="sync")
+        self.m.d.comb += rp.addr.eq(addr)
+        return self.reg(Value.cast(rp.data), name=f"{name}_q")
 
     def product(self, a, b, latency: int, name=None):
         """The exact product a * b after `latency` cycles (>= its `product_latency`): DSP-sized partial
@@ -150,11 +166,11 @@ class RsqrtUnit(wiring.Component):
     (4 multipliers each).
     """
 
-    def __init__(self, model: Rsqrt):
+    def __init__(self, model: Rsqrt, tables=None):
         if not isinstance(model, Rsqrt):
             raise TypeError(f"RsqrtUnit needs a hw.funcunits.Rsqrt model, got {type(model).__name__} "
                             f"({model!r})")
-        self.model = model
+        self.model, self.tables = model, tables
         if model.seed_relative_error() >= 0.125:
             raise ValueError(f"RsqrtUnit: seed error {model.seed_relative_error():g} too large for the "
                              f"fixed internal formats")
@@ -180,13 +196,9 @@ class RsqrtUnit(wiring.Component):
         m3, rs3, ls3, pos3 = _rsqrt_normalise(m, p, self.i.payload, md)
 
         # ---- cycle 4: seed ROM
-        rom = Memory(shape=unsigned(Y + 2), depth=len(md.seed_table),
-                     init=[int(v) for v in md.seed_table])
-        m.submodules.seed_rom = rom
-        rp = rom.read_port(domain="sync")
-        m.d.comb += rp.addr.eq(m3[M - sb:] - md.idx_lo)
         # ---- cycle 5: the ROM word in a register (block RAM clock-to-output is slow: no arithmetic after it)
-        y = p.reg(rp.data, name="y0")
+        y = p.table(self.tables, "seed_rom", unsigned(Y + 2), [int(v) for v in md.seed_table],
+                    m3[M - sb:] - md.idx_lo)
         mm, rs_, ls_, pos_ = [p.delay(s_, 2) for s_ in (m3, rs3, ls3, pos3)]
 
         # ---- Newton steps, 3 + 3 PRODUCT_LATENCY cycles each
@@ -312,11 +324,11 @@ class RsqrtTableUnit(wiring.Component):
     Throughput: one input per cycle, no stalls.
     """
 
-    def __init__(self, model: RsqrtTable):
+    def __init__(self, model: RsqrtTable, tables=None):
         if not isinstance(model, RsqrtTable):
             raise TypeError(f"RsqrtTableUnit needs a hw.funcunits.RsqrtTable model, got {type(model).__name__} "
                             f"({model!r})")
-        self.model = model
+        self.model, self.tables = model, tables
         self.latency = 8 + PRODUCT_LATENCY
         # its memories, known at construction (name, depth, width): the table ROM
         layout, init = self._rom_layout()
@@ -347,15 +359,11 @@ class RsqrtTableUnit(wiring.Component):
 
         # ---- cycle 4: table ROM
         layout, init = self._rom_layout()
-        rom = Memory(shape=layout, depth=1 << S, init=init)
-        m.submodules.table_rom = rom
-        rp = rom.read_port(domain="sync")
         o = m3[M - 1]
         j = Mux(o, m3[M - S:M - 1], m3[M - S - 1:M - 2])
-        m.d.comb += rp.addr.eq(Cat(j, o))
         frac = Mux(o, m3[:F], Cat(Const(0, 1), m3[:F - 1]))
         # ---- cycle 5: the ROM word in a register
-        row = data.View(layout, p.reg(rp.data.as_value(), name="row"))
+        row = data.View(layout, p.table(self.tables, "table_rom", layout, init, Cat(j, o)))
         frac5 = p.delay(frac, 2, name="frac")
         rs_, ls_, pos_ = [p.delay(s_, 2) for s_ in (rs3, ls3, pos3)]
 
@@ -421,11 +429,11 @@ class InverseTableUnit(wiring.Component):
     Throughput: one input per cycle, no stalls.
     """
 
-    def __init__(self, model: InverseTable):
+    def __init__(self, model: InverseTable, tables=None):
         if not isinstance(model, InverseTable):
             raise TypeError(f"InverseTableUnit needs a hw.funcunits.InverseTable model, got "
                             f"{type(model).__name__} ({model!r})")
-        self.model = model
+        self.model, self.tables = model, tables
         self.latency = 4 + 2 * PRODUCT_LATENCY
         n = len(model.out_shapes)
         self.output_fields = tuple(f"out{k}" for k in range(n))
@@ -508,12 +516,8 @@ class InverseTableUnit(wiring.Component):
         rows = []
         for k, (tab, clip, shape) in enumerate(zip(md.tabs, md.clips, md.out_shapes)):
             layout, init = self._rom_layout(tab, clip, shape)
-            rom = Memory(shape=layout, depth=len(init), init=init)
-            m.submodules[f"rom_{k}"] = rom
-            rp = rom.read_port(domain="sync")
-            m.d.comb += rp.addr.eq(idx)
             # ---- cycle 5: the ROM word in a register (no arithmetic after a block RAM's output)
-            rows.append(data.View(layout, p.reg(rp.data.as_value(), name=f"row_{k}")))
+            rows.append(data.View(layout, p.table(self.tables, f"rom_{k}", layout, init, idx)))
 
         # ---- cycles 6 to 8: interpolation, saturation count, the output registers
         sats = []

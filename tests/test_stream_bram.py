@@ -81,3 +81,33 @@ def test_block_plan_counts():
     assert plan_blocks(18, 1682) == (9, 2048, 1, 2)
     assert plan_blocks(44, 64, 2) == (36, 512, 1, 2)           # 2 x 22 bits padded to 2 x 27 = 54
     assert BlockRam(20, 3000).blocks() == 6
+
+
+ROM2_CASES = [  # width, depth: two read ports (true dual port: 1024 x 18 or 2048 x 9 blocks)
+    (35, 1024),               # two 18-bit columns (the 1/sqrt table's shape)
+    (31, 256),                # 36 bits would take one block with one port; two ports take 2
+    (34, 4096),               # rows of blocks, row select per port (the Psi table's shape)
+]
+
+
+@pytest.mark.parametrize("ram", ["sim", "ecp5"])
+@pytest.mark.parametrize("width,depth", ROM2_CASES)
+def test_two_port_rom_returns_both_words(ram, width, depth):
+    rng = np.random.default_rng(width + depth)
+    init = [int(v) for v in rng.integers(1 << width, size=depth)]
+    dut = BlockRam(width, depth, init=init, writable=False, read_ports=2, ram=ram)
+    addrs = [[int(a), int(b)] for a, b in rng.integers(depth, size=(300, 2))] + [[depth - 1, 0], [0, depth - 1]]
+    vals = addrs + [[0, 0], [0, 0]]
+    run = run_amaranth if ram == "sim" else (lambda *a: run_verilog(*a, tag=f"rom2-{width}-{depth}"))
+    got = run(dut, ["r_addr", "r2_addr"], vals, ["r_data", "r2_data"])
+    for t, (a, b) in enumerate(addrs):          # presented in cycle t, in the register after edge t + 1
+        assert (got[t + 1, 0], got[t + 1, 1]) == (init[a], init[b]), f"{ram} {width}x{depth}: cycle {t}"
+
+
+@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
+def test_two_port_plan_counts():
+    assert plan_blocks(31, 256, read_ports=2) == (18, 1024, 1, 2)     # no 36-bit mode with two ports
+    assert plan_blocks(34, 4096, read_ports=2)[2] * plan_blocks(34, 4096, read_ports=2)[3] == 8
+    assert BlockRam(35, 1024, writable=False, read_ports=2).blocks() == 2
+    with pytest.raises(ValueError):
+        BlockRam(8, 16, read_ports=2)                                  # a writable RAM has one read port

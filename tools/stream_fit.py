@@ -1,7 +1,10 @@
 """Block RAM budget of the streaming core against mesh size (a model from the cores' own memory
-inventories, StreamCore.memories(), plus the function units' ROMs that Yosys infers): which squares and
-boxes fit the 208 DP16KD of an LFE5U-85F. Formats come from the 1e4-element mesh (they hardly depend on
-its size), so no range analysis of the large meshes is needed.
+inventories, StreamCore.memories(), which include the function-unit tables that pairs of element lanes
+share, plus each lane's own unit ROMs that Yosys infers, planned as hw/stream/bram.py plans a BlockRam:
+the two Phi tables, 2 DP16KD a lane under medium; unshared, all tables take 12 a lane under medium, 6
+under narrow): which squares and boxes fit the 208 DP16KD of an LFE5U-85F. Checked against Yosys on
+square:1000, P = Q = 2, medium: 74 modelled, 74 synthesised. Formats come from the 1e4-element mesh (they
+hardly depend on its size), so no range analysis of the large meshes is needed.
 
     python tools/stream_fit.py square 6 2 narrow 10000 20000 30000 ...
 """
@@ -10,10 +13,16 @@ from __future__ import annotations
 import sys
 import warnings
 
-import numpy as np
-
 warnings.filterwarnings("ignore")
-UNIT_ROM_BLOCKS = {2: 5, 3: 5}      # per element lane (1/sqrt seeds, Phi and Psi tables): 30 for 6 lanes (Yosys, square:10000)
+
+
+def unit_rom_blocks(lane) -> int:
+    """DP16KD of a lane's own function-unit ROMs (1/sqrt tables, Phi and Psi tables, from its kernel's dry
+    run), those it does not share with another lane (hw/stream/tables.py)."""
+    from hw.stream.bram import plan_blocks
+    from hw.stream.tables import shares
+    own = [mem for mem in lane.unit_memories() if lane.tables is None or not shares(mem["width"], mem["depth"])]
+    return sum(rows * cols for *_, rows, cols in (plan_blocks(mem["width"], mem["depth"]) for mem in own))
 
 
 def inventory(kind, n, P, Q, preset, fmt_cache={}):
@@ -28,12 +37,14 @@ def inventory(kind, n, P, Q, preset, fmt_cache={}):
     bt = BitTrue(system, preset, formats=fmt_cache[(kind, preset)])
     core = StreamCore(StreamConfig.of(bt, P, Q))
     mems = core.memories()
-    blocks = sum(m["dp16kd"] for m in mems) + P * UNIT_ROM_BLOCKS[system.dim]
+    units = sum(unit_rom_blocks(lane) for lane in core.elements + core.pairs)
+    blocks = sum(m["dp16kd"] for m in mems) + units
     sch = core.schedule
     return dict(elements=system.n_elements, nodes=system.n_nodes, bandwidth=sch.bandwidth, T=sch.period,
                 C=sch.slots, window_groups=sch.window_groups, dp16kd=blocks,
-                by_kind={k: sum(m["dp16kd"] for m in mems if m["name"].startswith(k))
-                         for k in ("store", "window", "ring", "runsum", "el", "nd", "fill", "retire")})
+                by_kind={**{k: sum(m["dp16kd"] for m in mems if m["name"].startswith(k) and "_tables." not in m["name"])
+                            for k in ("store", "window", "ring", "runsum", "el", "nd", "fill", "retire")},
+                         "tables": units + sum(m["dp16kd"] for m in mems if "_tables." in m["name"])})
 
 
 if __name__ == "__main__":

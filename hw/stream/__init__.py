@@ -10,13 +10,15 @@ Modules, one concept each (the first two without Amaranth):
                  period T, checked against every read-after-write rule at construction
   config.py      StreamConfig: order, pipeline stages (dry runs), schedule, force rings, host map
   bram.py        BlockRam: simple dual-port block RAM with its output register (Amaranth Memory, or
-                 ECP5 DP16KD instances with REGMODE_B = "OUTREG"); dp16kd.v: the DP16KD model
+                 ECP5 DP16KD instances with REGMODE_B = "OUTREG"), a ROM with one or two read ports;
+                 dp16kd.v: the DP16KD model
   nodeword.py    how a node's x, u words pack into memory words; small gateware helpers
   store.py       NodeStore: node state, stored once in Q banks
   window.py      NodeWindow: the ring of nodes, one copy per read port, written by the fill
   forcering.py   ForceRing (read-modify-write with forwarding) and RunSum (runs summed in a register)
   kernels.py     the kernels of hw/datapath.py on PipeArith for each lane kind, and their dry runs
-  lanerom.py     LaneRom: a lane's per-item fields in one ROM
+  lanerom.py     LaneRom: a lane's per-item fields in one ROM, dictionary-encoded where they take few values
+  tables.py      TablePair: function-unit tables shared by two element lanes (two ROM ports)
   element.py     ElementLane; pair.py PairLane; node.py NodeLane
   control.py     Control: the run, its prologue, periods and epilogue
   hostport.py    HostPort: the register map of hw/hostmap.py; saturation.py SaturationCounter

@@ -19,6 +19,11 @@ Two variants, chosen at construction (`ram=`):
   Pins and INITVAL layout follow Yosys's lattice/brams_map_16kd.v; the Verilog model of the subset used
   is `DP16KD_MODEL` (hw/stream/dp16kd.v), which simulators need beside the core's Verilog.
 
+A ROM may have a second read port (`read_ports=2`, members `r2_addr`, `r2_data`, the same latency):
+two readers share one copy, e.g. two lanes' function-unit tables. The "ecp5" variant then runs the
+DP16KD in true dual-port mode, both ports reading with their output registers (REGMODE_A = REGMODE_B =
+"OUTREG"); that mode has no 36-bit width, so blocks are 1024 x 18 or 2048 x 9.
+
 `blocks()` states the DP16KD count of the "ecp5" variant for either variant (the manifest's budget).
 """
 from __future__ import annotations
@@ -52,11 +57,12 @@ def _layout(width: int, segments: int):
     return pseg * segments, seg, pseg
 
 
-def plan_blocks(width: int, depth: int, segments: int = 1):
-    """(data width of the blocks, depth of a block, rows, columns) with the fewest DP16KD blocks."""
+def plan_blocks(width: int, depth: int, segments: int = 1, read_ports: int = 1):
+    """(data width of the blocks, depth of a block, rows, columns) with the fewest DP16KD blocks (two
+    read ports: true dual-port mode, no 36-bit width)."""
     total, _, _ = _layout(width, segments)
     best = None
-    for w, d in MODES:
+    for w, d in MODES[read_ports - 1:]:
         rows, cols = -(-depth // d), -(-total // w)
         cand = (rows * cols, rows, -w, w, d, rows, cols)
         if best is None or cand < best:
@@ -65,9 +71,9 @@ def plan_blocks(width: int, depth: int, segments: int = 1):
     return w, d, rows, cols
 
 
-def ram_record(name: str, width: int, depth: int, segments: int = 1) -> dict:
+def ram_record(name: str, width: int, depth: int, segments: int = 1, read_ports: int = 1) -> dict:
     """A memory inventory entry: name, depth, width and the DP16KD blocks of the "ecp5" variant."""
-    _, _, rows, cols = plan_blocks(width, depth, segments)
+    _, _, rows, cols = plan_blocks(width, depth, segments, read_ports)
     return {"name": name, "depth": depth, "width": width, "dp16kd": rows * cols}
 
 
@@ -85,36 +91,47 @@ class BlockRam(wiring.Component):
         False: a ROM (no write port; `w_*` are ignored).
     ram : "sim" or "ecp5"
         The variant (module docstring).
+    read_ports : 1 or 2
+        2: a ROM with a second read port (`r2_addr`, `r2_data`).
 
     Members
     -------
     w_addr, w_data, w_en : In
         Write: word `w_addr` takes `w_data` in the parts whose `w_en` bits are set, at the clock edge.
     r_addr : In
-        Read address; `r_data` (Out) holds that word LATENCY = 2 cycles later.
+        Read address; `r_data` (Out) holds that word LATENCY = 2 cycles later (`r2_addr`, `r2_data`: the
+        second read port).
     """
 
     def __init__(self, width: int, depth: int, *, init=None, segments: int = 1, writable: bool = True,
-                 ram: str = "sim"):
+                 ram: str = "sim", read_ports: int = 1):
         if ram not in RAM_VARIANTS:
             raise ValueError(f"unknown block RAM variant {ram!r} (known: {', '.join(RAM_VARIANTS)})")
         if width < 1 or depth < 1:
             raise ValueError(f"a block RAM needs width and depth >= 1, got {width} x {depth}")
         if segments < 1 or width % segments:
             raise ValueError(f"width {width} does not split into {segments} segments")
+        if read_ports not in (1, 2) or (read_ports == 2 and writable):
+            raise ValueError(f"{read_ports} read ports: a BlockRam has 1, a ROM 1 or 2 (its port A reads then)")
         self.width, self.depth, self.segments, self.writable, self.ram = width, depth, segments, writable, ram
+        self.read_ports = read_ports
         self.init = [int(v) & ((1 << width) - 1) for v in (init or [])]
         if len(self.init) > depth:
             raise ValueError(f"{len(self.init)} initial words for a depth of {depth}")
         self.abits = addr_bits(depth)
-        super().__init__({
-            "w_addr": In(self.abits), "w_data": In(width), "w_en": In(segments),
-            "r_addr": In(self.abits), "r_data": Out(width),
-        })
+        members = {"w_addr": In(self.abits), "w_data": In(width), "w_en": In(segments),
+                   "r_addr": In(self.abits), "r_data": Out(width)}
+        if read_ports == 2:
+            members.update({"r2_addr": In(self.abits), "r2_data": Out(width)})
+        super().__init__(members)
+
+    def _reads(self):
+        """(address, data) of each read port."""
+        return [(self.r_addr, self.r_data)] + ([(self.r2_addr, self.r2_data)] if self.read_ports == 2 else [])
 
     def blocks(self) -> int:
         """DP16KD blocks of the "ecp5" variant."""
-        _, _, rows, cols = plan_blocks(self.width, self.depth, self.segments)
+        _, _, rows, cols = plan_blocks(self.width, self.depth, self.segments, self.read_ports)
         return rows * cols
 
     def elaborate(self, platform):
@@ -130,15 +147,16 @@ class BlockRam(wiring.Component):
             wp = mem.write_port(granularity=seg if self.segments > 1 else None)
             m.d.comb += [wp.addr.eq(self.w_addr), wp.data.eq(self.w_data),
                          wp.en.eq(self.w_en if self.segments > 1 else self.w_en[0])]
-        rp = mem.read_port(domain="sync")
-        m.d.comb += rp.addr.eq(self.r_addr)
-        m.d.sync += self.r_data.eq(rp.data)
+        for addr, data in self._reads():
+            rp = mem.read_port(domain="sync")
+            m.d.comb += rp.addr.eq(addr)
+            m.d.sync += data.eq(rp.data)
         return m
 
     # ---- DP16KD instances
     def _ecp5(self):
         m = Module()
-        w, d, rows, cols = plan_blocks(self.width, self.depth, self.segments)
+        w, d, rows, cols = plan_blocks(self.width, self.depth, self.segments, self.read_ports)
         total, seg, pseg = _layout(self.width, self.segments)
         lbits = addr_bits(d)
         shift = {36: 5, 18: 4, 9: 3}[w]
@@ -156,38 +174,43 @@ class BlockRam(wiring.Component):
         else:
             byte_en = [self.w_en[0]] * nbytes
         row_w = self.w_addr[lbits:] if rows > 1 else None
-        row_r = self.r_addr[lbits:] if rows > 1 else None
-        outs = []
+        reads = self._reads()
+        outs = [[] for _ in reads]          # per read port, per row: the row's word
         for r in range(rows):
             wsel = (row_w == r) if rows > 1 else Const(1, 1)
-            dout = []
+            dout = [[] for _ in reads]
             for c in range(cols):
                 lo = c * w
-                bits = Signal(w, name=f"do_r{r}_c{c}")
+                bits = [Signal(w, name=f"do{p}_r{r}_c{c}") for p in range(len(reads))]
                 be = [(byte_en[(lo + k * BYTE) // BYTE] if lo + k * BYTE < total else Const(0, 1)) & wsel
                       & Const(int(self.writable), 1) for k in range(w // BYTE)]
                 di = Signal(w, name=f"di_r{r}_c{c}")
                 m.d.comb += di.eq(wdata[lo:lo + w] if lo < total else 0)
+                read_a = (reads[1][0][:lbits], bits[1]) if len(reads) == 2 else None
                 m.submodules[f"bram_r{r}_c{c}"] = self._instance(
-                    w, shift, lbits, di, bits, be, self.w_addr[:lbits], self.r_addr[:lbits],
-                    self._initvals(r * d, d, w, lo, total))
-                dout.append(bits)
-            outs.append(Cat(*dout)[:total])
-        if rows > 1:
-            rsel = Signal.like(row_r, name="row_d1")
-            rsel2 = Signal.like(row_r, name="row_d2")
-            m.d.sync += [rsel.eq(row_r), rsel2.eq(rsel)]
-            word = Signal(total)
-            with m.Switch(rsel2):
-                for r in range(rows):
-                    with m.Case(r):
-                        m.d.comb += word.eq(outs[r])
-        else:
-            word = outs[0]
-        if self.segments > 1:
-            m.d.comb += self.r_data.eq(Cat(*[word[s * pseg:s * pseg + seg] for s in range(self.segments)]))
-        else:
-            m.d.comb += self.r_data.eq(word[:self.width])
+                    w, shift, lbits, di, bits[0], be, self.w_addr[:lbits], self.r_addr[:lbits],
+                    self._initvals(r * d, d, w, lo, total), read_a)
+                for p in range(len(reads)):
+                    dout[p].append(bits[p])
+            for p in range(len(reads)):
+                outs[p].append(Cat(*dout[p])[:total])
+        for p, (addr, data) in enumerate(reads):
+            if rows > 1:
+                row_r = addr[lbits:]
+                rsel = Signal.like(row_r, name=f"row{p}_d1")
+                rsel2 = Signal.like(row_r, name=f"row{p}_d2")
+                m.d.sync += [rsel.eq(row_r), rsel2.eq(rsel)]
+                word = Signal(total, name=f"word{p}")
+                with m.Switch(rsel2):
+                    for r in range(rows):
+                        with m.Case(r):
+                            m.d.comb += word.eq(outs[p][r])
+            else:
+                word = outs[p][0]
+            if self.segments > 1:
+                m.d.comb += data.eq(Cat(*[word[s * pseg:s * pseg + seg] for s in range(self.segments)]))
+            else:
+                m.d.comb += data.eq(word[:self.width])
         return m
 
     def _initvals(self, base, d, w, lo, total):
@@ -215,13 +238,14 @@ class BlockRam(wiring.Component):
             vals.append(sum(chunks[i * 16 + k] << (20 * k) for k in range(16)))
         return vals
 
-    def _instance(self, w, shift, lbits, di, do, be, waddr, raddr, initvals):
-        """One DP16KD: port A writes, port B reads (REGMODE_B = "OUTREG")."""
+    def _instance(self, w, shift, lbits, di, do, be, waddr, raddr, initvals, read_a=None):
+        """One DP16KD: port A writes, port B reads (REGMODE_B = "OUTREG"); with `read_a` = (address,
+        data), port A reads too (a ROM's second port, w <= 18, REGMODE_A = "OUTREG")."""
         zero = Const(0, 1)
         ada = [zero] * 14
         adb = [zero] * 14
         for k in range(min(lbits, len(waddr))):
-            ada[shift + k] = waddr[k]
+            ada[shift + k] = waddr[k] if read_a is None else read_a[0][k]
             adb[shift + k] = raddr[k]
         any_en = Cat(*be).any()
         if w == 36:
@@ -233,10 +257,12 @@ class BlockRam(wiring.Component):
             wea, cea = any_en, Const(1, 1)
         else:
             wea, cea = be[0], Const(1, 1)
+        if read_a is not None:
+            wea, cea = zero, Const(1, 1)
         dia = di[:18] if w >= 18 else Cat(di[:9], Const(0, 9))
         dib = di[18:36] if w == 36 else Const(0, 18)
         params = {"p_DATA_WIDTH_A": w, "p_DATA_WIDTH_B": w,
-                  "p_REGMODE_A": "OUTREG" if w == 36 else "NOREG", "p_REGMODE_B": "OUTREG",
+                  "p_REGMODE_A": "OUTREG" if w == 36 or read_a is not None else "NOREG", "p_REGMODE_B": "OUTREG",
                   "p_RESETMODE": "SYNC", "p_ASYNC_RESET_RELEASE": "SYNC",
                   "p_CSDECODE_A": "0b000", "p_CSDECODE_B": "0b000",
                   "p_WRITEMODE_A": "NORMAL", "p_WRITEMODE_B": "NORMAL", "p_GSR": "AUTO"}
@@ -267,4 +293,6 @@ class BlockRam(wiring.Component):
             sub.d.comb += do.eq(Cat(doa, dob))
         else:
             sub.d.comb += do.eq(dob[:w])
+        if read_a is not None:
+            sub.d.comb += read_a[1].eq(doa[:w])
         return sub

@@ -38,11 +38,12 @@ from .element import ElementLane
 from .forcering import ForceRing, RunSum
 from .hostport import HostPort, HostSignature
 from .node import NodeLane
-from .nodeword import bits_for, delay, segment
+from .nodeword import delay, segment
 from .pair import PairLane
 from .probeport import ProbePort
 from .saturation import SaturationCounter
 from .store import NodeStore
+from .tables import share as share_tables
 from .window import NodeWindow
 
 
@@ -58,7 +59,9 @@ class StreamCore(wiring.Component):
         self.control = Control(sch, ram)
         self.store = NodeStore(word, Q, sch.groups, self._store_init(), ram)
         self.elements = [ElementLane(cfg, lane) for lane in range(P)]
+        share_tables(self.elements, ram)           # lanes 2k and 2k + 1 share the function units' tables
         self.pairs = [PairLane(cfg, lane) for lane in range(P)] if cfg.n_pairs else []
+        share_tables(self.pairs, ram)
         reads = 2 * P + (D + 1) * len(self.pairs)
         self.window = NodeWindow(word, Q, sch.window_groups, reads, 1, ram)
         fe = cfg.formats["fe"].width
@@ -100,22 +103,16 @@ class StreamCore(wiring.Component):
         out = self.store.rams() + self.window.rams()
         for ring, info in zip(self.rings, self.cfg.rings):
             out += ring.rams(info.name)
-        for lane in self.elements:
+        for lane in self.elements + self.pairs:
             out += lane.rams()
         return out + self._roms()
 
     def _roms(self) -> list[dict]:
-        """The lanes' and the control's ROMs: widths from the dry runs' per-item fields."""
+        """The node lanes' and the control's ROMs (node lanes: widths from the dry run's per-item fields;
+        the element and pair lanes' ROMs are in their rams())."""
         cfg, sch = self.cfg, self.schedule
-        wb, qb = bits_for(sch.window_groups), bits_for(cfg.node_lanes)
-        out = []
-        el_bits = 2 * (wb + qb + 1) + sum(b for _, b in cfg.element_dry.params)
-        out += [ram_record(f"el{lane.lane}_rom", el_bits, lane.depth) for lane in self.elements]
-        if self.pairs:
-            pr_bits = (cfg.dim + 1) * (wb + qb + 1) + sum(b for _, b in cfg.pair_dry.params)
-            out += [ram_record(f"pr{lane.lane}_rom", pr_bits, lane.depth) for lane in self.pairs]
         nd_bits = len(cfg.rings) + sum(b for _, b in cfg.node_dry.params)
-        out += [ram_record(f"nd{lane.q}_rom", max(1, nd_bits), sch.groups) for lane in self.nodes]
+        out = [ram_record(f"nd{lane.q}_rom", max(1, nd_bits), sch.groups) for lane in self.nodes]
         return out + [ram_record("fill_phases", 1, sch.period), ram_record("retire_phases", 1, sch.period)]
 
     def elaborate(self, platform):

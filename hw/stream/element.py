@@ -14,9 +14,12 @@ Item k of the element stream runs in lane k % P at slot k // P of every step (hw
              lane's ForceRing (`contrib_lo`), the higher node's to its RunSum (`contrib_hi`: the stream is
              sorted by higher node, so a lane's contributions to it come in runs; hw/stream/forcering.py)
 
-II = 1, no stalls; the stages are known at construction (a dry run) and checked at elaboration. While
-idle, the host reads or writes a word of the a memory (`host_*`, `host_rdata` two cycles later). `sats`:
-the lane's saturation counts per quantity (`quantities`), PipeArith's `saturation_events`.
+The function units' ROMs are the lane's own, or shared with the next lane (`tables`, a side of a
+hw/stream/tables.py TablePair that the core assigns; the lane of side 0 holds them and lists them in its
+`rams()`). II = 1, no stalls; the stages are known at construction (a dry run) and checked at
+elaboration. While idle, the host reads or writes a word of the a memory (`host_*`, `host_rdata` two
+cycles later). `sats`: the lane's saturation counts per quantity (`quantities`), PipeArith's
+`saturation_events`.
 """
 from __future__ import annotations
 
@@ -29,6 +32,7 @@ from ..rtl_fixed import as_shape
 from .bram import BlockRam, ram_record
 from .forcering import ContributionSignature
 from .kernels import ROM_STAGE, build_element, first_flags, last_flags
+from . import tables
 from .lanerom import LaneRom
 from .nodeword import bits_for, delay
 from .window import NodeReadSignature
@@ -66,9 +70,37 @@ class ElementLane(wiring.Component):
         for k, _ in enumerate(self.quantities):
             members[f"sat{k}"] = Out(SAT_BITS)
         super().__init__(members)
+        self.rom = self._rom()
+        self.tables = None               # the function units' ROMs: the lane's own, or a TablePair side
 
     def rams(self) -> list[dict]:
-        return [ram_record(f"el{self.lane}_a", self.a_bits, self.depth)]
+        return ([ram_record(f"el{self.lane}_a", self.a_bits, self.depth)] + self.rom.records(f"el{self.lane}_rom")
+                + tables.records(self, f"el{self.lane}_tables"))
+
+    def unit_memories(self) -> list[dict]:
+        """The function units' memories (name, depth, width), from the dry run."""
+        return self.cfg.element_dry.ar.memories
+
+    def _rom(self) -> LaneRom:
+        """The lane's ROM (dictionary-encoded, hw/stream/lanerom.py): the window groups and banks of nodes
+        i and j, whether i is the higher node, the first and last flags, the kernel's per-element
+        parameters (from the dry run)."""
+        cfg, name = self.cfg, f"el{self.lane}"
+        Q, Wg = cfg.node_lanes, cfg.schedule.window_groups
+        rom = LaneRom(self.depth, cfg.ram, dictionary=True)
+        ni, nj = cfg.order.ei[self.items], cfg.order.ej[self.items]
+        for r, nodes in enumerate((ni, nj)):
+            rom.add(f"{name}_g{r}", unsigned(bits_for(Wg)), (nodes // Q) % Wg)
+            rom.add(f"{name}_b{r}", unsigned(bits_for(Q)), nodes % Q)
+        rom.add(f"{name}_i_high", unsigned(1), ni > nj)          # node i is the higher node
+        lo, hi = np.minimum(ni, nj), np.maximum(ni, nj)
+        rom.add(f"{name}_first_lo", unsigned(1), first_flags(lo))
+        rom.add(f"{name}_first_hi", unsigned(1), first_flags(hi))
+        rom.add(f"{name}_last_hi", unsigned(1), last_flags(hi))
+        elements = cfg.order.elements[self.items]
+        for q, (shape, raw) in cfg.element_dry.param_values.items():
+            rom.add(f"{name}_prm_{q}", shape, raw[elements])
+        return rom
 
     def a_memory(self):
         init = np.asarray(self.cfg.init.get("A", np.zeros(self.cfg.n_elements)))
@@ -80,28 +112,21 @@ class ElementLane(wiring.Component):
         m = Module()
         cfg, p, fmt = self.cfg, self.cfg.params, self.cfg.formats
         Q, Wg, word = cfg.node_lanes, cfg.schedule.window_groups, cfg.word
-        wb, qb = bits_for(Wg), bits_for(Q)
+        wb = bits_for(Wg)
         name = f"el{self.lane}"
         slot = self.issue.slot[:self.pbits]
         valid0 = Signal(name=f"{name}_valid0")
         m.d.comb += valid0.eq(self.issue.valid & (self.issue.slot < len(self.items)))
 
-        rom = LaneRom(self.depth, cfg.ram)
-        elements = cfg.order.elements[self.items]
-        ni, nj = cfg.order.ei[self.items], cfg.order.ej[self.items]
-        roles = []
-        for r, nodes in enumerate((ni, nj)):
-            g = rom.add(f"{name}_g{r}", unsigned(wb), (nodes // Q) % Wg)
-            b = rom.add(f"{name}_b{r}", unsigned(qb), nodes % Q)
-            roles.append((g, b))
-        swap = rom.add(f"{name}_i_high", unsigned(1), ni > nj)          # node i is the higher node
-        lo, hi = np.minimum(ni, nj), np.maximum(ni, nj)
-        first_lo = rom.add(f"{name}_first_lo", unsigned(1), first_flags(lo))
-        first_hi = rom.add(f"{name}_first_hi", unsigned(1), first_flags(hi))
-        last_hi = rom.add(f"{name}_last_hi", unsigned(1), last_flags(hi))
+        rom = self.rom
+        roles = [(rom.signal(f"{name}_g{r}"), rom.signal(f"{name}_b{r}")) for r in range(2)]
+        swap, first_lo, first_hi, last_hi = [rom.signal(f"{name}_{f}")
+                                             for f in ("i_high", "first_lo", "first_hi", "last_hi")]
 
         def src(q, raw, shape):
-            return rom.add(f"{name}_prm_{q}", shape, np.asarray(raw)[elements])
+            sig = rom.signal(f"{name}_prm_{q}")
+            assert len(sig) == len(Signal(shape)), (q, len(sig), shape)
+            return sig
 
         # stage 2: window slots from the ROM and the step's base
         base2 = delay(m, self.issue.base, ROM_STAGE, f"{name}_base")
@@ -116,7 +141,9 @@ class ElementLane(wiring.Component):
         (Xi, Ui), (Xj, Uj) = word.unpack(self.ring_i.data), word.unpack(self.ring_j.data)
         a_shape = as_shape(fmt["a"])
         a_raw = a_mem.r_data.as_signed() if a_shape.signed else a_mem.r_data
-        built = build_element(m, p, fmt, cfg.units, valid0, name, src, a_raw, Xi, Xj, Ui, Uj)
+        if self.tables is not None:
+            self.tables.reset()
+        built = build_element(m, p, fmt, cfg.units, valid0, name, src, a_raw, Xi, Xj, Ui, Uj, self.tables)
         assert built.stage == self.stage, f"{name}: pipeline stage {built.stage}, the schedule has {self.stage}"
         assert built.outputs["state_stage"] == self.state_stage
         ar, s = built.ar, built.stage

@@ -49,6 +49,7 @@ class Built:
     stage: int                 # contribution (element, pair) or result (node) stage
     outputs: dict              # kind-specific values (see the build functions)
     params: list = None        # dry runs: the per-item ROM fields the kernel asked for, (name, bits)
+    param_values: dict = None  # dry runs of element and pair kernels: name -> (shape, raw values of every item)
 
     @property
     def quantities(self) -> list[str]:
@@ -59,8 +60,8 @@ def _signals(n, shape, name):
     return [Signal(shape, name=f"{name}{k}") for k in range(n)]
 
 
-def build_element(m, p, fmt, units, valid, name, src, A, Xi, Xj, Ui, Uj) -> Built:
-    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE)
+def build_element(m, p, fmt, units, valid, name, src, A, Xi, Xj, Ui, Uj, tables=None) -> Built:
+    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, tables=tables)
     with ar:
         a_in = ar.input(A, "a", ROM_STAGE)
         node = lambda vs, q: [ar.input(v, q, NODE_STAGE) for v in vs]
@@ -71,8 +72,8 @@ def build_element(m, p, fmt, units, valid, name, src, A, Xi, Xj, Ui, Uj) -> Buil
                              "state_stage": new_a.stage if new_a is not None else 0})
 
 
-def build_pair(m, p, fmt, units, valid, name, src, kernel, X_roles, U_roles) -> Built:
-    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE)
+def build_pair(m, p, fmt, units, valid, name, src, kernel, X_roles, U_roles, tables=None) -> Built:
+    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, tables=tables)
     D = p.dim
     with ar:
         ins = [[ar.input(v, "x", NODE_STAGE) for v in X_roles[r]] for r in range(D + 1)]
@@ -119,10 +120,12 @@ def build_probe_sample(m, p, fmt, units, valid, name, P, Pprev) -> Built:
     return Built(ar, stage, {"P": Pi, "Pdot": Pdot, "Lo": Lo, "Hi": Hi})
 
 
-def _dry_src(fields):
+def _dry_src(fields, values=None):
     def src(q, raw, shape):
         sig = Signal(shape, name=f"dry_{q}")
         fields.append((q, len(sig)))
+        if values is not None:
+            values[q] = (shape, np.asarray(raw))
         return sig
     return src
 
@@ -132,26 +135,26 @@ def _finish(m):
 
 
 def dry_run_element(p, fmt, units) -> Built:
-    m, fields = Module(), []
+    m, fields, values = Module(), [], {}
     D = p.dim
     xs, us = as_shape(fmt["x"]), as_shape(fmt["u"])
-    b = build_element(m, p, fmt, units, Signal(), "dry_el", _dry_src(fields), Signal(as_shape(fmt["a"])),
+    b = build_element(m, p, fmt, units, Signal(), "dry_el", _dry_src(fields, values), Signal(as_shape(fmt["a"])),
                       _signals(D, xs, "xi"), _signals(D, xs, "xj"), _signals(D, us, "ui"), _signals(D, us, "uj"))
     b.ar.saturation_events()
     _finish(m)
-    b.params = fields
+    b.params, b.param_values = fields, values
     return b
 
 
 def dry_run_pair(p, fmt, units) -> Built:
-    m, fields = Module(), []
+    m, fields, values = Module(), [], {}
     D = p.dim
     xs, us = as_shape(fmt["x"]), as_shape(fmt["u"])
-    b = build_pair(m, p, fmt, units, Signal(), "dry_pr", _dry_src(fields), pair_kernel,
+    b = build_pair(m, p, fmt, units, Signal(), "dry_pr", _dry_src(fields, values), pair_kernel,
                    [_signals(D, xs, f"x{r}_") for r in range(D + 1)], [_signals(D, us, f"u{r}_") for r in range(D + 1)])
     b.ar.saturation_events()
     _finish(m)
-    b.params = fields
+    b.params, b.param_values = fields, values
     return b
 
 

@@ -8,7 +8,8 @@ from amaranth.lib.memory import Memory
 
 
 def unit_memories(core) -> list[dict]:
-    """Memories inside the function units (1/sqrt seed ROMs, damper tables): inferred, not BlockRams."""
+    """Memories inside the function units (1/sqrt seed ROMs, damper tables): inferred, not BlockRams
+    (tables shared by two lanes are BlockRams, in the core's memories())."""
     frag = Fragment.get(core, None)
     out = []
 
@@ -16,7 +17,7 @@ def unit_memories(core) -> list[dict]:
         for n, (sub, name, _) in enumerate(f.subfragments):
             where = f"{path}.{name if name is not None else f'U${n}'}" if path else str(name)
             for mem in sub.origins or ():
-                if isinstance(mem, Memory) and ("rsqrt" in where or "inverse" in where):
+                if isinstance(mem, Memory) and ("rsqrt" in where or "inverse" in where) and ".shared_" not in where:
                     out.append({"name": where, "depth": mem.depth, "width": Shape.cast(mem.shape).width})
             walk(sub, where)
     walk(frag, "")

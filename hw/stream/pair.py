@@ -4,18 +4,19 @@ Item k of the pair stream (sorted by its highest node, hw/stream/order.py) runs 
 k // P. Like an element lane with D + 1 roles (the vertex, then the facet's vertices) and no state:
 
   stage 0    `issue`: slot c; the ROM is read
-  stage 2    per role: window slot, bank, "first contribution of this lane to this node in this step";
-             the role's window read port `rings[r]` gets the slot
+  stage 2    per role: window slot, bank, "first contribution of this lane to this node in this step"
+             (the ROM's fields, dictionary-encoded: hw/stream/lanerom.py); the role's window read port
+             `rings[r]` gets the slot
   stage 4    x, u of the D + 1 nodes
   `stage`    per role the pair force (zero where the pair's gate, d <= eps, is closed: the item still
              counts as the lane's contribution, so that a ring word's first contribution always writes),
              presented to the role's force ring (`contribs[r]`)
 
+The function units' tables are shared by pairs of pair lanes as by element lanes (hw/stream/tables.py).
 II = 1, no stalls; stages known at construction (a dry run), checked at elaboration.
 """
 from __future__ import annotations
 
-import numpy as np
 from amaranth.hdl import Module, Signal, unsigned
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
@@ -24,6 +25,7 @@ from ..datapath import pair_kernel
 from .element import SAT_BITS, IssueSignature
 from .forcering import ContributionSignature
 from .kernels import ROM_STAGE, build_pair, first_flags
+from . import tables
 from .lanerom import LaneRom
 from .nodeword import bits_for, delay
 from .window import NodeReadSignature
@@ -47,25 +49,45 @@ class PairLane(wiring.Component):
         for k, _ in enumerate(self.quantities):
             members[f"sat{k}"] = Out(SAT_BITS)
         super().__init__(members)
+        self.rom = self._rom()
+        self.tables = None               # the function units' ROMs: the lane's own, or a TablePair side
+
+    def rams(self) -> list[dict]:
+        return self.rom.records(f"pr{self.lane}_rom") + tables.records(self, f"pr{self.lane}_tables")
+
+    def unit_memories(self) -> list[dict]:
+        """The function units' memories (name, depth, width), from the dry run."""
+        return self.cfg.pair_dry.ar.memories
+
+    def _rom(self) -> LaneRom:
+        """Per role the window group, bank and first flag of its node; the kernel's per-pair parameters."""
+        cfg, name = self.cfg, f"pr{self.lane}"
+        Q, Wg = cfg.node_lanes, cfg.schedule.window_groups
+        rom = LaneRom(self.depth, cfg.ram, dictionary=True)
+        for r in range(cfg.dim + 1):
+            nodes = cfg.order.pair_nodes[self.items, r]
+            rom.add(f"{name}_g{r}", unsigned(bits_for(Wg)), (nodes // Q) % Wg)
+            rom.add(f"{name}_b{r}", unsigned(bits_for(Q)), nodes % Q)
+            rom.add(f"{name}_first{r}", unsigned(1), first_flags(nodes))
+        pairs = cfg.order.pairs[self.items]
+        for q, (shape, raw) in cfg.pair_dry.param_values.items():
+            rom.add(f"{name}_prm_{q}", shape, raw[pairs])
+        return rom
 
     def elaborate(self, platform):
         m = Module()
         cfg, p, fmt = self.cfg, self.cfg.params, self.cfg.formats
-        D, Q, Wg, word = cfg.dim, cfg.node_lanes, cfg.schedule.window_groups, cfg.word
-        wb, qb = bits_for(Wg), bits_for(Q)
+        D, Wg, word = cfg.dim, cfg.schedule.window_groups, cfg.word
+        wb = bits_for(Wg)
         name = f"pr{self.lane}"
         slot = self.issue.slot[:self.pbits]
         valid0 = Signal(name=f"{name}_valid0")
         m.d.comb += valid0.eq(self.issue.valid & (self.issue.slot < len(self.items)))
-        rom = LaneRom(self.depth, cfg.ram)
-        pairs = cfg.order.pairs[self.items]
+        rom = self.rom
         base2 = delay(m, self.issue.base, ROM_STAGE, f"{name}_base")
         roles, X, U = [], [], []
         for r in range(D + 1):
-            nodes = cfg.order.pair_nodes[self.items, r]
-            g = rom.add(f"{name}_g{r}", unsigned(wb), (nodes // Q) % Wg)
-            b = rom.add(f"{name}_b{r}", unsigned(qb), nodes % Q)
-            f = rom.add(f"{name}_first{r}", unsigned(1), first_flags(nodes))
+            g, b, f = [rom.signal(f"{name}_{what}{r}") for what in ("g", "b", "first")]
             s2 = Signal(wb, name=f"{name}_slot{r}")
             m.d.comb += [s2.eq(base2 + g), self.rings[r].addr.eq(s2), self.rings[r].bank.eq(b)]
             roles.append((s2, b, f))
@@ -74,9 +96,13 @@ class PairLane(wiring.Component):
             U.append(Ur)
 
         def src(q, raw, shape):
-            return rom.add(f"{name}_prm_{q}", shape, np.asarray(raw)[pairs])
+            sig = rom.signal(f"{name}_prm_{q}")
+            assert len(sig) == len(Signal(shape)), (q, len(sig), shape)
+            return sig
 
-        built = build_pair(m, p, fmt, cfg.units, valid0, name, src, pair_kernel, X, U)
+        if self.tables is not None:
+            self.tables.reset()
+        built = build_pair(m, p, fmt, cfg.units, valid0, name, src, pair_kernel, X, U, self.tables)
         assert built.stage == self.stage, f"{name}: pipeline stage {built.stage}, the schedule has {self.stage}"
         ar, s = built.ar, built.stage
         rom.build(m, f"{name}_rom", slot)
