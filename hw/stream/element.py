@@ -32,7 +32,7 @@ from ..rtl_fixed import as_shape
 from .bram import BlockRam, ram_record
 from .forcering import ContributionSignature
 from .kernels import ROM_STAGE, build_element, first_flags, last_flags
-from . import tables
+from .tables import records as table_records
 from .lanerom import LaneRom
 from .nodeword import bits_for, delay
 from .window import NodeReadSignature
@@ -75,7 +75,7 @@ class ElementLane(wiring.Component):
 
     def rams(self) -> list[dict]:
         return ([ram_record(f"el{self.lane}_a", self.a_bits, self.depth)] + self.rom.records(f"el{self.lane}_rom")
-                + tables.records(self, f"el{self.lane}_tables"))
+                + table_records(self, f"el{self.lane}_tables"))
 
     def unit_memories(self) -> list[dict]:
         """The function units' memories (name, depth, width), from the dry run."""

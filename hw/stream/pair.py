@@ -25,7 +25,7 @@ from ..datapath import pair_kernel
 from .element import SAT_BITS, IssueSignature
 from .forcering import ContributionSignature
 from .kernels import ROM_STAGE, build_pair, first_flags
-from . import tables
+from .tables import records as table_records
 from .lanerom import LaneRom
 from .nodeword import bits_for, delay
 from .window import NodeReadSignature
@@ -53,7 +53,7 @@ class PairLane(wiring.Component):
         self.tables = None               # the function units' ROMs: the lane's own, or a TablePair side
 
     def rams(self) -> list[dict]:
-        return self.rom.records(f"pr{self.lane}_rom") + tables.records(self, f"pr{self.lane}_tables")
+        return self.rom.records(f"pr{self.lane}_rom") + table_records(self, f"pr{self.lane}_tables")
 
     def unit_memories(self) -> list[dict]:
         """The function units' memories (name, depth, width), from the dry run."""
