@@ -1,0 +1,61 @@
+"""Sample-in to force-out latency of the streaming core's probe port on a finer poke, from the schedule
+alone (no elaboration): the built-in poke scene's block with its mesh divisions multiplied, under the
+formats of the built-in scene (their range analysis would otherwise run the large mesh; like
+tools/stream_fit.py). Latency = the sample kernel's stages + run_cycles(k) + DONE_STAGES, as
+hw/stream/probeport.py `ProbePort.latency`.
+
+    python tools/probe_latency.py poke-2d-1000-elements 3.125 5 4 wide [85.8 98.1]   # scene, refinement, P, Q, preset, MHz...
+"""
+from __future__ import annotations
+
+import re
+import sys
+import tempfile
+import warnings
+from pathlib import Path
+
+warnings.filterwarnings("ignore")
+
+
+def refined(scene: str, factor: float) -> str:
+    """The scene file's text with its first mesh's divisions multiplied by factor."""
+    from golden.scene import builtin_names
+    if scene not in builtin_names():
+        raise SystemExit(f"unknown built-in scene {scene!r}")
+    text = (Path(__file__).resolve().parents[1] / "golden" / "scenes" / f"{scene}.toml").read_text()
+    m = re.search(r"divisions = \[([^\]]*)\]", text)
+    divs = [max(1, round(int(v) * factor)) for v in m.group(1).split(",")]
+    return text[:m.start()] + f"divisions = [{', '.join(map(str, divs))}]" + text[m.end():]
+
+
+def main(argv) -> int:
+    from golden.errors import RheoError
+    from golden.scene import load_scene
+    from hw.bittrue import BitTrue
+    from hw.stream.config import StreamConfig
+    from hw.stream.probeport import DONE_STAGES
+    scene, factor, P, Q, preset = argv[0], float(argv[1]), int(argv[2]), int(argv[3]), argv[4]
+    clocks = [float(v) for v in argv[5:]] or [100.0]
+    small = load_scene(scene)
+    formats = BitTrue(small, preset).formats
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / f"{scene}-x{factor:g}.toml"
+        path.write_text(refined(scene, factor))
+        big = load_scene(str(path))
+    for name, system in ((scene, small), (f"{scene} x{factor:g}", big)):
+        try:
+            cfg = StreamConfig.of(BitTrue(system, preset, formats=formats), P, Q)
+        except (RheoError, ValueError) as exc:
+            print(f"{name}: {system.n_elements} elements, P {P}, Q {Q}: refused: {exc}", flush=True)
+            continue
+        sch = cfg.schedule
+        latency = cfg.probe_dry.stage + sch.run_cycles(int(cfg.params.probe["k"])) + DONE_STAGES
+        at = ", ".join(f"{latency / mhz:.1f} us at {mhz:g} MHz" for mhz in clocks)
+        print(f"{name}: {system.n_elements} elements, {system.n_nodes} nodes, P {P}, Q {Q}, {preset}: "
+              f"T {sch.period} (element slots {sch.element_slots}, pair slots {sch.pair_slots}), "
+              f"latency {latency} cycles = {at}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
