@@ -260,7 +260,7 @@ def synthesize_cached(verilog: Path, top: str, device: str = "ecp5-85k", clock_m
         d = root / f"{digest}-{device}-{kind}"
         if (d / "synth.json").is_file():
             return json.loads((d / "synth.json").read_text()), d
-    d = root / f"{digest}-{device}-{kinds[0]}"
+    d = root / f"{digest}-{device}-{'pnr' if place_and_route else 'yosys'}"   # named by what ran
     tmp = root / f".{d.name}.{os.getpid()}.tmp"
     try:
         result = synthesize(verilog, top, tmp, device=device, clock_mhz=clock_mhz, progress=progress,

@@ -1,0 +1,29 @@
+"""sim/synth.py `synthesize_cached`: a result is filed under what ran, so a Yosys-only result never
+answers a place-and-route question (and a place-and-route result answers both)."""
+from __future__ import annotations
+
+import json
+
+import sim.synth as synth
+
+
+def test_a_yosys_only_result_does_not_answer_place_and_route(tmp_path, monkeypatch):
+    monkeypatch.setenv("RHEO_BUILD", str(tmp_path / "build"))
+    runs = []
+
+    def fake(verilog, top, out_dir, device, clock_mhz, progress, place_and_route):
+        runs.append(place_and_route)
+        out_dir.mkdir(parents=True)
+        result = {"fmax_mhz": 91.0 if place_and_route else None}
+        (out_dir / "synth.json").write_text(json.dumps(result))
+        return result
+
+    monkeypatch.setattr(synth, "synthesize", fake)
+    v = tmp_path / "core.v"
+    v.write_text("module rheo_core; endmodule\n")
+    r, d = synth.synthesize_cached(v, "rheo_core", place_and_route=False)
+    assert r["fmax_mhz"] is None and d.name.endswith("-yosys")
+    r, d = synth.synthesize_cached(v, "rheo_core", place_and_route=True)    # must place and route now
+    assert r["fmax_mhz"] == 91.0 and d.name.endswith("-pnr") and runs == [False, True]
+    r, d = synth.synthesize_cached(v, "rheo_core", place_and_route=False)   # the pnr result answers this too
+    assert r["fmax_mhz"] == 91.0 and runs == [False, True]
