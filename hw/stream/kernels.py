@@ -32,6 +32,7 @@ from .bram import LATENCY
 ROM_STAGE = LATENCY               # ROM fields (and a) valid at stage 2
 NODE_STAGE = 2 * LATENCY          # x, u at stage 4 (window read presented at stage 2)
 FORCE_STAGE = LATENCY + 2         # node lanes: the sum of the force rings, in two registered levels
+PROBE_REGS = (("P", "x"), ("Pdot", "pdot"), ("Lo", "x"), ("Hi", "x"))   # the probe's registers, their formats
 
 
 class NodeArith(PipeArith):
@@ -101,7 +102,7 @@ def build_node(m, p, fmt, units, valid, name, src, X, U, Fe, step, probe: ProbeI
             extra = {}
         else:
             regs = ProbeInputs(*[[ar.input(v, q, None) for v in vs]
-                                 for vs, q in zip(probe, ("x", "pdot", "x", "x"))])
+                                 for vs, (_, q) in zip(probe, PROBE_REGS)])
             new_x, new_u, (gate, force) = node_kernel(ar, p, Xp, Up, Fp, step, _node_flags(p), regs)
             extra = {"probe_gate": gate.cond, "probe_f": force,
                      "probe_stage": max([v.stage for v in force] + [gate.cond.stage])}
@@ -166,7 +167,7 @@ def dry_run_node(p, fmt, units, fe_bits: int) -> Built:
     probe = None
     if p.probe is not None:
         probe = ProbeInputs(*[_signals(D, as_shape(fmt[q]), f"probe_{n}")
-                              for n, q in (("P", "x"), ("Pdot", "pdot"), ("Lo", "x"), ("Hi", "x"))])
+                              for n, q in PROBE_REGS])
     b = build_node(m, p, fmt, units, Signal(), "dry_nd", _dry_src(fields), _signals(D, xs, "x"), _signals(D, us, "u"),
                    _signals(D, signed(fe_bits), "f"), Signal(32), probe)
     b.ar.saturation_events()

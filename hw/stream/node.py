@@ -31,7 +31,7 @@ from amaranth.lib.wiring import In, Out
 from ..datapath import ProbeInputs
 from ..rtl_fixed import as_shape, tree_sum
 from .element import SAT_BITS
-from .kernels import FORCE_STAGE, ROM_STAGE, build_node
+from .kernels import FORCE_STAGE, PROBE_REGS, ROM_STAGE, build_node
 from .lanerom import LaneRom
 from .nodeword import bits_for, split_words
 
@@ -64,7 +64,7 @@ class NodeLane(wiring.Component):
         self.probe_stage = cfg.node_dry.outputs.get("probe_stage")
         if self.probe_stage is not None:
             fmt, D = cfg.formats, cfg.dim
-            for reg, q in (("P", "x"), ("Pdot", "pdot"), ("Lo", "x"), ("Hi", "x")):
+            for reg, q in PROBE_REGS:
                 members[f"probe_{reg}"] = In(D * fmt[q].width)
             members.update({"probe_valid": Out(1), "probe_first": Out(1), "probe_touch": Out(1),
                             "probe_f": Out(D * fmt["pfe"].width)})
@@ -117,7 +117,7 @@ class NodeLane(wiring.Component):
         probe = None
         if self.probe_stage is not None:
             probe = ProbeInputs(*[split_words(getattr(self, f"probe_{reg}"), D, as_shape(fmt[q]))
-                                  for reg, q in (("P", "x"), ("Pdot", "pdot"), ("Lo", "x"), ("Hi", "x"))])
+                                  for reg, q in PROBE_REGS])
         built = build_node(m, p, fmt, cfg.units, valid0, name, src, X, U, F, self.retire.step, probe)
         assert built.stage == self.stage, f"{name}: pipeline stage {built.stage}, the schedule has {self.stage}"
         ar, s = built.ar, built.stage

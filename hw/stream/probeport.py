@@ -35,12 +35,11 @@ from ..arith import FixedArith
 from ..datapath import probe_initial
 from ..rtl_fixed import FixedValue, as_shape, tree_sum
 from .element import SAT_BITS
-from .kernels import build_probe_sample
+from .kernels import PROBE_REGS as REGS, build_probe_sample
 from .nodeword import bits_for, split_words
 from .schedule import SAT_TAIL
 
 DONE_STAGES = 2        # the cycle the port sees Control idle, then the output register
-REGS = (("P", "x"), ("Pdot", "pdot"), ("Lo", "x"), ("Hi", "x"))
 
 
 def LaneProbeSignature(dim: int, pfe_bits: int):
