@@ -75,7 +75,7 @@ def narrowest_preset(system: System, steps: int | None = None, budget: float = P
 
 
 def run_backend(system: System, backend: str, steps=None, every=None, progress=False, preset="wide",
-                lanes=1, node_lanes=1, bittrue=None, core="auto") -> Run:
+                lanes=1, node_lanes=1, bittrue=None, core="auto", pair_lanes=None) -> Run:
     """Run `system` on `backend` (BACKENDS); `bittrue`: the bit-true model to use (formats) for a
     fixed-point backend, else one is built for the preset."""
     if backend not in BACKENDS:
@@ -97,7 +97,7 @@ def run_backend(system: System, backend: str, steps=None, every=None, progress=F
         if backend == "amaranth":
             from sim.hwsim import simulate_amaranth
             return simulate_amaranth(system, preset, steps=steps, every=every, progress=progress, lanes=lanes,
-                                     node_lanes=node_lanes, bittrue=bt, core=core)
+                                     node_lanes=node_lanes, bittrue=bt, core=core, pair_lanes=pair_lanes)
         from sim.hdlsim import simulate_hdl
         return simulate_hdl(system, backend, preset, steps=steps, every=every, progress=progress, lanes=lanes,
-                            node_lanes=node_lanes, bittrue=bt, core=core)
+                            node_lanes=node_lanes, bittrue=bt, core=core, pair_lanes=pair_lanes)

@@ -162,7 +162,7 @@ def bench_fixed(n_elements: int, min_seconds: float = 1.0, preset: str = "wide")
 def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes: int = 1,
                simulator: str = "verilator", steps: int = 2, fmax_mhz: float | None = None,
                device: str = "ecp5-85k", min_seconds: float = 1.0, range_steps: int | None = None,
-               log=None, core: str = "auto") -> dict:
+               log=None, core: str = "auto", pair_lanes: int | None = None) -> dict:
     """Modelled FPGA throughput of `system`'s specialised core and the golden model's measured throughput.
 
     The preset ("auto": the narrowest within 1e-3 of the object size of golden, sim.backends.narrowest_preset)
@@ -178,12 +178,12 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
     """
     from hw.bittrue import BitTrue
     from hw.datapath import state_difference
-    from hw.stream import resolve_core
+    from hw.stream import check_pair_lanes, resolve_core
     from .hdlsim import emit_core, run_job
     from .synth import synthesize_cached
     from .backends import narrowest_preset, preset_error
     say = log or (lambda m: None)
-    resolve_core(system, core)                       # a scene no core takes: refused before any run
+    check_pair_lanes(resolve_core(system, core), pair_lanes)   # a scene no core takes: refused before any run
     if preset == "auto":
         say(f"{system.name}: choosing the preset (bit-true runs against golden over {system.n_steps} steps)")
         preset, error, chosen = narrowest_preset(system, log=say)
@@ -195,7 +195,7 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
     say(f"{system.name}: formats (preset {preset})")
     bt = BitTrue(system, preset, range_steps=range_steps)
     kind = resolve_core(bt.params, core)
-    core_dir, man, drv = emit_core(bt, lanes, node_lanes, core=kind)
+    core_dir, man, drv = emit_core(bt, lanes, node_lanes, core=kind, pair_lanes=pair_lanes)
     steps = max(2, steps)
     say(f"{simulator}: runs of 1 and {steps} steps of the {kind} core in {core_dir}")
     st = bt.initial_state()
@@ -222,7 +222,8 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
     cycles = (out["cycles"][1] - out["cycles"][0]) / (steps - 1)
     row = dict(backend="fpga", scene=system.name, elements=system.n_elements, nodes=system.n_nodes, preset=preset,
                preset_why=chosen, error_vs_golden=error, error_steps=system.n_steps,
-               lanes=lanes, node_lanes=node_lanes, core=kind, simulator=simulator, cycles_per_step=cycles,
+               lanes=lanes, node_lanes=node_lanes, pair_lanes=man["lanes"]["pair_lanes"], core=kind,
+               simulator=simulator, cycles_per_step=cycles,
                cycles_per_step_schedule=man["cycles_per_step"]["value"], run_cycles=out["cycles"],
                ideal_cycles_per_step=-(-system.n_elements // lanes),
                simulator_cycles_per_s=(sum(out["cycles"]) + sum(out.get("latency", []))) / max(out["wall_s"], 1e-9),
@@ -231,7 +232,7 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
         say(f"place and route for {device} (Yosys + nextpnr, once per Verilog; tens of minutes for large cores)")
         synth_dir = core_dir
         if kind == "stream":                          # synthesis takes the DP16KD instances
-            synth_dir, _, _ = emit_core(bt, lanes, node_lanes, core=kind, ram="ecp5")
+            synth_dir, _, _ = emit_core(bt, lanes, node_lanes, core=kind, ram="ecp5", pair_lanes=pair_lanes)
         res, synth_dir = synthesize_cached(synth_dir / f"{man['top']}.v", man["top"], device=device,
                                            progress=log is not None)
         fmax_mhz, source = res["fmax_mhz"], f"measured: nextpnr-ecp5 on {device} ({synth_dir})"

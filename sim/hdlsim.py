@@ -35,10 +35,10 @@ def build_root() -> Path:
 
 
 def emit_core(bt: BitTrue, lanes=1, node_lanes=1, root: Path | None = None, core: str = "phased",
-              ram: str = "sim"):
+              ram: str = "sim", pair_lanes: int | None = None):
     """Emit the core's Verilog into a directory named after its hash; returns (dir, manifest, driver).
     A core with DP16KD instances (ram "ecp5") gets the DP16KD model beside it (simulators need it)."""
-    core, text, man = emit.build(bt, lanes, node_lanes, core, ram)
+    core, text, man = emit.build(bt, lanes, node_lanes, core, ram, pair_lanes)
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
     d = (root or build_root()) / f"{file_stem(bt.system.name)}-{digest}"
     d.mkdir(parents=True, exist_ok=True)
@@ -114,12 +114,13 @@ def _polling(path: Path, progress):
 
 
 def simulate_hdl(system: System, simulator: str, preset="wide", steps=None, every=None, progress=False,
-                 lanes=1, node_lanes=1, bittrue: BitTrue | None = None, core: str = "phased") -> Run:
+                 lanes=1, node_lanes=1, bittrue: BitTrue | None = None, core: str = "phased",
+                 pair_lanes: int | None = None) -> Run:
     """Run the scene's Verilog on a simulator: one cocotb job runs every output interval and reads the state
     back after each; the read-backs become the Run's frames (checked by the divergence watchdog, with the
     raw words, the hardware's saturation count and the cycles measured)."""
     bt = bittrue or BitTrue(system, preset, range_steps=max(system.n_steps, steps or 0))
-    core_dir, man, drv = emit_core(bt, lanes, node_lanes, core=core)
+    core_dir, man, drv = emit_core(bt, lanes, node_lanes, core=core, pair_lanes=pair_lanes)
     n_steps = system.n_steps if steps is None else int(steps)
     at = frame_steps(n_steps, max(1, system.every if every is None else int(every)))
     st = bt.initial_state()

@@ -85,9 +85,10 @@ class AmaranthCore:
     """A core for one scene inside Amaranth's simulator, called like a HostDriver (blocking).
     `core`: "phased" (hw/core.py), "stream" (hw/stream/core.py) or "auto"."""
 
-    def __init__(self, bt: BitTrue, lanes: int = 1, node_lanes: int = 1, core: str = "phased"):
+    def __init__(self, bt: BitTrue, lanes: int = 1, node_lanes: int = 1, core: str = "phased",
+                 pair_lanes: int | None = None):
         from hw.stream import build_core
-        self.core = build_core(bt, lanes, node_lanes, core)
+        self.core = build_core(bt, lanes, node_lanes, core, pair_lanes=pair_lanes)
         self.cfg = self.core.cfg
         self.sim = Simulator(self.core)
         self.sim.add_clock(1e-8)
@@ -240,10 +241,11 @@ class PortStepper(HardwareStepper):
 
 
 def simulate_amaranth(system: System, preset="wide", steps=None, every=None, progress=False, lanes=1,
-                      node_lanes=1, bittrue: BitTrue | None = None, core: str = "phased") -> Run:
+                      node_lanes=1, bittrue: BitTrue | None = None, core: str = "phased",
+                      pair_lanes: int | None = None) -> Run:
     """Run the core in Amaranth's simulator (a Run with the raw words, formats and cycles)."""
     bt = bittrue or BitTrue(system, preset, range_steps=max(system.n_steps, steps or 0))
-    hw = AmaranthCore(bt, lanes, node_lanes, core)
+    hw = AmaranthCore(bt, lanes, node_lanes, core, pair_lanes)
     try:
         run = simulate(system, steps=steps, every=every, progress=progress, stepper=HardwareStepper(bt, hw))
     finally:

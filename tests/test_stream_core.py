@@ -52,8 +52,8 @@ def compare(bt, hw, start, frames):
     return st
 
 
-def run_core(bt, P, Q, start, frames):
-    hw = AmaranthCore(bt, P, Q, core="stream")
+def run_core(bt, P, Q, start, frames, Pp=None):
+    hw = AmaranthCore(bt, P, Q, core="stream", pair_lanes=Pp)
     try:
         return compare(bt, hw, start, frames), hw.core
     finally:
@@ -77,6 +77,27 @@ def test_lanes_and_the_edge_of_a_load_window():
     assert end < bt.system.n_steps
     _, core = run_core(bt, 2, 3, end - 2, [1, 1, 2])
     assert core.cfg.n_nodes % 3 != 0
+
+
+def test_pair_lanes_apart_from_element_lanes():
+    """press-2d-rheological, narrow, P = 1 element lane, Pp = 3 pair lanes, Q = 2: the pairs take a third
+    of the slots they take on one lane, and the core stays bit for bit."""
+    bt = bittrue("press-2d-rheological", "narrow")
+    _, core = run_core(bt, 1, 2, 40, [1, 2], Pp=3)
+    sch, n_pairs = core.schedule, core.cfg.n_pairs
+    assert n_pairs > 3 and len(core.pairs) == 3 and sch.pair_lanes == 3
+    assert sch.pair_slots == -(-n_pairs // 3) and sch.element_slots == core.cfg.n_elements
+    assert sum(info.kind == "pr" for info in core.cfg.rings) == 3 * 3
+
+
+def test_pair_lanes_belong_to_the_streaming_core():
+    """--pair-lanes on a scene the phased core runs (collisions) is refused in one line, exit 2."""
+    r = subprocess.run([sys.executable, "-m", "sim.cli", "verilog", "friction-2d-mu03", "--pair-lanes", "2",
+                        "--out", "unused"], cwd=ROOT, capture_output=True, text=True)
+    assert r.returncode == 2
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("rheo: error:")]
+    assert len(lines) == 1 and "--pair-lanes" in lines[0] and "phased" in lines[0], r.stderr
+    assert not (ROOT / "unused").exists()
 
 
 def test_saturation_counts_match_in_a_scene_built_to_saturate(tmp_path):

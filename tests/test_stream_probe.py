@@ -117,6 +117,19 @@ def test_probe_port_streams_the_bit_true_forces():
     check_stream(bt, core, words, want, st, sat, seed=16)
 
 
+@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
+def test_probe_port_with_more_pair_lanes_than_element_lanes():
+    """P = 1 element lane, Pp = 3 pair lanes (the poke scenes' pairs outnumber their elements): a shorter
+    latency, the same forces."""
+    bt = probe_model(TINY)
+    words, want, st = expected(bt, trajectory(bt, 5, 4e-4))
+    assert want[-1][1] > 0
+    sat = bt.sat.total
+    core = build_core(bt, 1, 2, "stream", pair_lanes=3)
+    assert core.probe_latency < build_core(bt, 1, 2, "stream").probe_latency
+    check_stream(bt, core, words, want, st, sat, seed=5)
+
+
 def check_stream(bt, core, words, want, st, sat, seed):
     """stream_samples against the bit-true model's forces, end state and saturations; latency = manifest."""
     outs, lat, (X, U, A, step, hw_sat, _) = stream_samples(core, words, seed=seed)
@@ -163,14 +176,15 @@ def fast_verilator_builds(monkeypatch):
         monkeypatch.setenv("MAKEFLAGS", (os.environ.get("MAKEFLAGS", "") + " OPT_FAST=-O0 OPT_SLOW=-O0 OPT_GLOBAL=-O0").strip())
 
 
-def check_verilog(simulator, scene, samples, down, P, Q, seed, range_steps=None):
+def check_verilog(simulator, scene, samples, down, P, Q, seed, range_steps=None, Pp=None):
     """The emitted Verilog (`rheo verilog --core stream`) on a simulator through cocotb (sim/cocotb_core.py):
     the same proof as check_stream, the latency against the manifest's."""
     from sim.hdlsim import emit_core, run_job
     bt = probe_model(scene, range_steps=range_steps)
     words, want, st = expected(bt, trajectory(bt, samples, down))
     assert want[0][1] == 0 and want[-1][1] > 0
-    core_dir, man, drv = emit_core(bt, P, Q, core="stream")
+    core_dir, man, drv = emit_core(bt, P, Q, core="stream", pair_lanes=Pp)
+    assert man["lanes"]["pair_lanes"] == (P if Pp is None else Pp)
     pm = man["probe_port"]
     x_bits, f_bits = bt.formats["x"].width, bt.formats["fprobe"].width
     init = bt.initial_state()
@@ -195,6 +209,12 @@ def check_verilog(simulator, scene, samples, down, P, Q, seed, range_steps=None)
 @pytest.mark.parametrize("simulator", ["icarus", "verilator"])
 def test_probe_port_verilog(simulator, fast_verilator_builds):
     check_verilog(simulator, TINY, 7, 3e-4, 2, 2, seed=7)
+
+
+@pytest.mark.hdl
+def test_probe_port_verilog_with_pair_lanes_apart_on_icarus():
+    """Pp = 3 pair lanes beside P = 1 element lane, as `rheo synth poke-... --pair-lanes`."""
+    check_verilog("icarus", TINY, 4, 5e-4, 1, 2, seed=11, Pp=3)
 
 
 @pytest.mark.hdl

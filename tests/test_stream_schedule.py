@@ -46,8 +46,10 @@ def _latest(log, cycle):
     return tag
 
 
-def replay(order, P, Q, lat, T, Wg, fill, retire, A0, steps=3):
-    """Replay `steps` steps; raises Violation naming the first broken rule."""
+def replay(order, P, Q, lat, T, Wg, fill, retire, A0, steps=3, Pp=None):
+    """Replay `steps` steps (P element lanes, Pp pair lanes: P unless given); raises Violation naming the
+    first broken rule."""
+    Pp = P if Pp is None else Pp
     N, D1 = order.n_nodes, order.pair_nodes.shape[1] if len(order.pair_nodes) else 0
     Gs = -(-N // Q)
     t0 = lambda k: A0 + k * T
@@ -58,12 +60,12 @@ def replay(order, P, Q, lat, T, Wg, fill, retire, A0, steps=3):
             raise Violation(f"{name}: not one group a cycle in order")
     # streams: (stage, [(lane, slot, nodes per role)])
     # element lanes accumulate by node: ring 0 the lower node of each element, ring 1 the higher
-    streams = [("el", lat.element, list(np.sort(np.stack([order.ei, order.ej], 1), axis=1)))]
+    streams = [("el", lat.element, list(np.sort(np.stack([order.ei, order.ej], 1), axis=1)), P)]
     if D1:
-        streams.append(("pr", lat.pair, list(order.pair_nodes)))
-    for name, _, items in streams:
-        for lane in range(P):
-            cyc = [t0(k) + i // P for k in range(steps) for i in range(lane, len(items), P)]
+        streams.append(("pr", lat.pair, list(order.pair_nodes), Pp))
+    for name, _, items, L in streams:
+        for lane in range(L):
+            cyc = [t0(k) + i // L for k in range(steps) for i in range(lane, len(items), L)]
             if len(set(cyc)) != len(cyc):
                 raise Violation(f"{name} lane {lane}: two items in one cycle")
     # the window
@@ -82,10 +84,10 @@ def replay(order, P, Q, lat, T, Wg, fill, retire, A0, steps=3):
 
     # force rings: per (stream, lane, role) and word: [(write cycle, (step, node))]
     rings = defaultdict(list)
-    for name, stage, items in streams:
+    for name, stage, items, L in streams:
         for k in range(steps):
             for i, nodes in enumerate(items):
-                lane, c = i % P, i // P
+                lane, c = i % L, i // L
                 for role, n in enumerate(nodes):
                     n = int(n)
                     window_read(k, n, t0(k) + c + MEM, f"{name} item {i} role {role}")
@@ -125,18 +127,18 @@ def replay(order, P, Q, lat, T, Wg, fill, retire, A0, steps=3):
     return True
 
 
-def check(order, P, Q, lat, steps=3):
-    sch = build_schedule(order, P, Q, lat)
+def check(order, P, Q, lat, steps=3, Pp=None):
+    sch = build_schedule(order, P, Q, lat, pair_lanes=Pp)
     args = (order, P, Q, lat)
-    replay(*args, sch.period, sch.window_groups, sch.fill, sch.retire, sch.issue_start, steps)
-    C = max(-(-len(order.ei) // P), -(-len(order.pair_nodes) // P), 1)
+    replay(*args, sch.period, sch.window_groups, sch.fill, sch.retire, sch.issue_start, steps, Pp)
+    C = max(-(-len(order.ei) // P), -(-len(order.pair_nodes) // (P if Pp is None else Pp)), 1)
     assert sch.period >= C and sch.slots == C
     # the period and the window are the smallest these fill / retirement cycles allow
     with pytest.raises(Violation):
-        replay(*args, sch.period - 1, sch.window_groups, sch.fill, sch.retire, sch.issue_start, steps)
+        replay(*args, sch.period - 1, sch.window_groups, sch.fill, sch.retire, sch.issue_start, steps, Pp)
     if sch.window_groups > 1:
         with pytest.raises(Violation):
-            replay(*args, sch.period, sch.window_groups // 2, sch.fill, sch.retire, sch.issue_start, steps)
+            replay(*args, sch.period, sch.window_groups // 2, sch.fill, sch.retire, sch.issue_start, steps, Pp)
     return sch
 
 
@@ -164,6 +166,7 @@ def test_random_meshes(seed):
     order = stream_order(N, edges, pairs)
     P, Q = int(rng.choice([1, 2, 3, 5])), int(rng.integers(1, 4))
     check(order, P, Q, LATENCIES[seed % len(LATENCIES)])
+    check(order, P, Q, LATENCIES[seed % len(LATENCIES)], Pp=int(rng.choice([1, 2, 4, 7])))   # pair lanes apart
 
 
 SCENES = [n for n in builtin_names() if scene_system(n).collision is None]
@@ -174,8 +177,8 @@ def test_builtin_scenes(name):
     system = scene_system(name)
     pairs = system.topology.pairs if system.topology is not None else None
     order = stream_order(system.n_nodes, system.edges, pairs)
-    for P, Q in ((1, 1), (2, 2), (3, 1)):
-        check(order, P, Q, LATENCIES[0])
+    for P, Q, Pp in ((1, 1, None), (2, 2, None), (3, 1, None), (2, 2, 3)):
+        check(order, P, Q, LATENCIES[0], Pp=Pp)
 
 
 @pytest.mark.parametrize("Q", [2, 3])

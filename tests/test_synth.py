@@ -81,7 +81,7 @@ def mac_result(mac_verilog, tmp_path_factory):
 
 def test_mac_design_resources_fmax_and_reports(mac_result):
     out, r = mac_result
-    assert r["device"] == "ecp5-85k" and r["top"] == "mac_ram"
+    assert r["device"] == "ecp5-85k" and r["top"] == "mac_ram" and r["router"] == "router1"
     assert r["mult18x18"] >= 1
     assert r["block_rams"] >= 1
     assert r["luts"] > 0
@@ -123,8 +123,9 @@ def test_mac_design_resources_fmax_and_reports(mac_result):
 
 
 def test_missed_constraint_is_reported_not_raised(mac_verilog, tmp_path, capsys):
-    r = synthesize(mac_verilog, "mac_ram", tmp_path, device="ecp5-45k", clock_mhz=1000.0, progress=True)
-    assert r["timing_met"] is False
+    r = synthesize(mac_verilog, "mac_ram", tmp_path, device="ecp5-45k", clock_mhz=1000.0, progress=True,
+                   router="router2")
+    assert r["timing_met"] is False and r["router"] == "router2"
     assert 0 < r["fmax_mhz"] < 1000.0
     assert r["utilization"]["TRELLIS_COMB"]["available"] == 43848
     assert "timing **NOT met**" in (tmp_path / "report.md").read_text()
@@ -132,6 +133,12 @@ def test_missed_constraint_is_reported_not_raised(mac_verilog, tmp_path, capsys)
     assert len(err) == 3, err                          # one line per step, with elapsed time
     assert all(ln.startswith("[synth ") and " s] " in ln for ln in err), err
     assert "] yosys: " in err[0] and "] nextpnr: Fmax " in err[1] and "] reports written to " in err[2]
+
+
+def test_unknown_router_is_refused_before_any_tool(mac_verilog, tmp_path):
+    with pytest.raises(ValueError, match="unknown nextpnr router 'router3' .*router1, router2"):
+        synthesize(mac_verilog, "mac_ram", tmp_path, router="router3")
+    assert not any(tmp_path.iterdir())
 
 
 def test_unknown_device_lists_known_ones(mac_verilog, tmp_path):

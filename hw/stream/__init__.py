@@ -53,23 +53,36 @@ def resolve_core(params, core: str = "auto") -> str:
     return core
 
 
-def cycles_per_step(bt, lanes: int = 1, node_lanes: int = 1, core: str = "auto") -> tuple[str, int]:
+def check_pair_lanes(kind: str, pair_lanes: int | None) -> None:
+    """Pair lanes apart from element lanes are the streaming core's: the phased core runs its pairs on
+    its P lanes."""
+    if pair_lanes is not None and kind == "phased":
+        raise BadArgument("--pair-lanes is the streaming core's: the phased core runs its topology pairs on "
+                          "its element lanes (--lanes)")
+
+
+def cycles_per_step(bt, lanes: int = 1, node_lanes: int = 1, core: str = "auto",
+                    pair_lanes: int | None = None) -> tuple[str, int]:
     """(the core `core` resolves to, its cycles per step), from the schedule known at construction:
     nothing is elaborated."""
     kind = resolve_core(bt.params, core)
+    check_pair_lanes(kind, pair_lanes)
     if kind == "phased":
         from ..core import CoreConfig, schedule
         return kind, schedule(CoreConfig.of(bt, lanes, node_lanes))["cycles_per_step"]
     from .config import StreamConfig
-    return kind, StreamConfig.of(bt, lanes, node_lanes).schedule.period
+    return kind, StreamConfig.of(bt, lanes, node_lanes, pair_lanes=pair_lanes).schedule.period
 
 
-def build_core(bt, lanes: int = 1, node_lanes: int = 1, core: str = "phased", ram: str = "sim"):
-    """The core (an Amaranth component with `cfg`, `host`, `cycles_per_step`) for a bit-true model."""
+def build_core(bt, lanes: int = 1, node_lanes: int = 1, core: str = "phased", ram: str = "sim",
+               pair_lanes: int | None = None):
+    """The core (an Amaranth component with `cfg`, `host`, `cycles_per_step`) for a bit-true model;
+    pair_lanes (the streaming core's topology-pair lanes) defaults to lanes."""
     core = resolve_core(bt.params, core)
+    check_pair_lanes(core, pair_lanes)
     if core == "phased":
         from ..core import Core, CoreConfig
         return Core(CoreConfig.of(bt, lanes, node_lanes))
     from .config import StreamConfig
     from .core import StreamCore
-    return StreamCore(StreamConfig.of(bt, lanes, node_lanes, ram=ram))
+    return StreamCore(StreamConfig.of(bt, lanes, node_lanes, ram=ram, pair_lanes=pair_lanes))

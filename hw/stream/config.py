@@ -46,8 +46,9 @@ class StreamConfig:
     """The static description of one streaming core (see the module docstring)."""
 
     def __init__(self, params, formats, units, lanes: int = 1, node_lanes: int = 1, init: dict | None = None,
-                 ram: str = "sim", max_window_groups: int | None = None):
-        for name, v in (("lanes", lanes), ("node_lanes", node_lanes)):
+                 ram: str = "sim", max_window_groups: int | None = None, pair_lanes: int | None = None):
+        pair_lanes = lanes if pair_lanes is None else pair_lanes
+        for name, v in (("lanes", lanes), ("node_lanes", node_lanes), ("pair_lanes", pair_lanes)):
             if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 64:
                 raise ValueError(f"{name} must be an integer in 1..64, got {v!r}")
         if params.collision is not None:
@@ -55,6 +56,8 @@ class StreamConfig:
                                 "not local to the node numbering): use the phased core (--core phased)")
         self.params, self.formats, self.units = params, formats, units
         self.lanes, self.node_lanes, self.ram = lanes, node_lanes, ram
+        self.pair_lanes = pair_lanes          # Pp: topology-pair lanes (P unless asked; scenes whose pairs
+                                              # outnumber their elements run faster with more)
         self.init = init or {}
         p = params
         pairs = p.topology["pairs"] if p.topology is not None else np.zeros((0, p.dim + 1), np.int64)
@@ -68,7 +71,7 @@ class StreamConfig:
                                    node=self.node_dry.stage,
                                    pair=self.pair_dry.stage if self.pair_dry is not None else 0)
         kw = {} if max_window_groups is None else {"max_window_groups": max_window_groups}
-        self.schedule = build_schedule(self.order, lanes, node_lanes, self.latencies, **kw)
+        self.schedule = build_schedule(self.order, lanes, node_lanes, self.latencies, pair_lanes=pair_lanes, **kw)
         self.word = NodeWord.of(formats, p.dim)
 
     @classmethod
@@ -99,7 +102,7 @@ class StreamConfig:
         return lane_items(self.n_elements, self.lanes, lane)
 
     def pair_items(self, lane: int) -> np.ndarray:
-        return lane_items(self.n_pairs, self.lanes, lane)
+        return lane_items(self.n_pairs, self.pair_lanes, lane)
 
     # ---- force rings, in the order of the node lanes' mask bits
     @functools.cached_property
@@ -112,7 +115,7 @@ class StreamConfig:
             for role, nodes in enumerate((np.minimum(ei, ej), np.maximum(ei, ej))):
                 out.append(RingInfo("el", lane, role, fe + max_count(nodes).bit_length() + 1, nodes, role == 1))
         if self.n_pairs:
-            for lane in range(self.lanes):
+            for lane in range(self.pair_lanes):
                 items = self.pair_items(lane)
                 for role in range(self.dim + 1):
                     nodes = self.order.pair_nodes[items, role]

@@ -2,7 +2,7 @@
 
 Node state is stored once (`NodeStore`, Q banks). The element and topology-pair streams run in a
 bandwidth-reducing order (reverse Cuthill-McKee, hw/stream/order.py) on P element lanes (`ElementLane`)
-and P pair lanes (`PairLane`), which read their nodes from a sliding window (`NodeWindow`, one ring copy
+and Pp pair lanes (`PairLane`, Pp = P unless asked), which read their nodes from a sliding window (`NodeWindow`, one ring copy
 per read port, filled from the store just ahead of the first read) and add their forces into their own
 rings (`ForceRing`, one per lane role). A node retires as soon as the stream has passed its last
 contribution: Q node lanes (`NodeLane`) integrate it and write the store. There is no node phase and no
@@ -10,7 +10,7 @@ drain between steps: steps run back to back, one period T apart, on the static s
 (hw/stream/schedule.py) that `Control` follows. `HostPort` speaks the register map of hw/hostmap.py,
 with the node and element placement of the renumbering (`cfg.host_map`).
 
-  cycles per step  T = max(ceil(items / P), the read-after-write bounds of the schedule)
+  cycles per step  T = max(ceil(E / P), ceil(pairs / Pp), the read-after-write bounds of the schedule)
   a run of n steps run_cycles(n) = A0 + (n - 1) T + drain + 1 (prologue, periods, epilogue)
 
 Hazards are impossible by construction: the schedule is checked at construction against every
@@ -60,7 +60,7 @@ class StreamCore(wiring.Component):
         self.store = NodeStore(word, Q, sch.groups, self._store_init(), ram)
         self.elements = [ElementLane(cfg, lane) for lane in range(P)]
         share_tables(self.elements, ram)           # lanes 2k and 2k + 1 share the function units' tables
-        self.pairs = [PairLane(cfg, lane) for lane in range(P)] if cfg.n_pairs else []
+        self.pairs = [PairLane(cfg, lane) for lane in range(cfg.pair_lanes)] if cfg.n_pairs else []
         share_tables(self.pairs, ram)
         reads = 2 * P + (D + 1) * len(self.pairs)
         self.window = NodeWindow(word, Q, sch.window_groups, reads, 1, ram)

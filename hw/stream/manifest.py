@@ -43,7 +43,7 @@ def manifest(bt, core, specialisation, top: str) -> dict:
         "preset": bt.formats.preset.name,
         "dim": cfg.dim,
         "nodes": N, "elements": E, "pairs": Pn, "collision_pairs": 0,
-        "lanes": {"element_lanes_P": cfg.lanes, "pair_lanes": cfg.lanes if Pn else 0, "collision_lanes": 0,
+        "lanes": {"element_lanes_P": cfg.lanes, "pair_lanes": cfg.pair_lanes if Pn else 0, "collision_lanes": 0,
                   "node_lanes_Q": cfg.node_lanes},
         "ram": cfg.ram,
         "features": {k: (bool(v) if not isinstance(v, int) or isinstance(v, bool) else v) for k, v in feats.items()},
@@ -56,9 +56,10 @@ def manifest(bt, core, specialisation, top: str) -> dict:
         "memory_bits": int(sum(m["depth"] * m["width"] for m in mems + units)),
         "block_rams_dp16kd": int(sum(m["dp16kd"] for m in mems)),
         "cycles_per_step": {
-            "formula": "T = max(ceil(E/P), ceil(pairs/P), the schedule's read-after-write bounds); a run of n steps "
+            "formula": "T = max(ceil(E/P), ceil(pairs/Pp), the schedule's read-after-write bounds); a run of n steps "
                        "takes A0 + (n - 1) T + drain + 1 cycles",
-            "E": E, "pairs": Pn, "collision_pairs": 0, "N": N, "P": cfg.lanes, "Q": cfg.node_lanes,
+            "E": E, "pairs": Pn, "collision_pairs": 0, "N": N, "P": cfg.lanes, "Pp": cfg.pair_lanes if Pn else 0,
+            "Q": cfg.node_lanes,
             "value": sch.period, "run_cycles_1": sch.run_cycles(1),
         },
         "schedule": sch.to_dict(),

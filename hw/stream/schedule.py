@@ -81,12 +81,12 @@ class StreamSchedule:
     the step's issue. `binding` names what sets T.
     """
     n_nodes: int
-    lanes: int                 # P
+    lanes: int                 # P: element lanes
     node_lanes: int            # Q
     groups: int                # Gs = ceil(N / Q)
     slots: int                 # C: item slots a step
     element_slots: int         # ceil(E / P)
-    pair_slots: int            # ceil(pairs / P)
+    pair_slots: int            # ceil(pairs / Pp)
     period: int                # T
     window_groups: int         # Wg
     latencies: Latencies
@@ -99,6 +99,7 @@ class StreamSchedule:
     bandwidth: int
     binding: str
     bounds: dict = field(default_factory=dict)
+    pair_lanes: int = 0        # Pp: topology-pair lanes (0: no pairs)
 
     # ---- derived figures
     @property
@@ -150,6 +151,7 @@ class StreamSchedule:
             "period_T": self.period, "item_slots_C": self.slots, "element_slots": self.element_slots,
             "pair_slots": self.pair_slots, "binding": self.binding, "bounds": dict(self.bounds),
             "groups_Gs": self.groups, "node_lanes_Q": self.node_lanes, "lanes_P": self.lanes,
+            "pair_lanes_Pp": self.pair_lanes,
             "window_groups_Wg": self.window_groups, "window_nodes_W": self.window_nodes,
             "bandwidth": self.bandwidth, "prologue_A0": self.issue_start,
             "fill_start": self.fill_start, "retire_start": self.retire_start, "drain": self.drain,
@@ -178,23 +180,24 @@ def _by_group(arr, Q, Gs, fill, reduce):
 
 
 def build_schedule(order: StreamOrder, lanes: int, node_lanes: int, lat: Latencies,
-                   max_window_groups: int = MAX_WINDOW_GROUPS) -> StreamSchedule:
-    """The schedule of a core streaming `order` on P = lanes element (and pair) lanes and Q = node_lanes
-    node lanes with these pipeline latencies; raises BandwidthError when no window up to
-    `max_window_groups` groups satisfies the rules."""
+                   max_window_groups: int = MAX_WINDOW_GROUPS, pair_lanes: int | None = None) -> StreamSchedule:
+    """The schedule of a core streaming `order` on P = lanes element lanes, Pp = pair_lanes topology-pair
+    lanes (default P) and Q = node_lanes node lanes with these pipeline latencies; raises BandwidthError
+    when no window up to `max_window_groups` groups satisfies the rules."""
     P, Q, N = int(lanes), int(node_lanes), order.n_nodes
-    if P < 1 or Q < 1:
-        raise ValueError(f"lanes and node lanes must be at least 1, got P = {P}, Q = {Q}")
+    Pp = P if pair_lanes is None else int(pair_lanes)
+    if P < 1 or Q < 1 or Pp < 1:
+        raise ValueError(f"lanes, pair lanes and node lanes must be at least 1, got P = {P}, Pp = {Pp}, Q = {Q}")
     if N < 1:
         raise ValueError("a scene without nodes has no schedule")
     E, Pn = len(order.ei), len(order.pair_nodes)
     if Pn and lat.pair <= 0:
         raise ValueError("pairs in the stream but no pair pipeline latency")
     M = MEMORY
-    Ce, Cp = -(-E // P), -(-Pn // P)
+    Ce, Cp = -(-E // P), -(-Pn // Pp)
     C = max(Ce, Cp, 1)
     Gs = -(-N // Q)
-    se, sp = np.arange(E) // P, np.arange(Pn) // P
+    se, sp = np.arange(E) // P, np.arange(Pn) // Pp
     nodes = [order.ei, order.ej] + [order.pair_nodes[:, r] for r in range(order.pair_nodes.shape[1] if Pn else 0)]
     slots = [se, se] + [sp] * (len(nodes) - 2)
     stage = [lat.element, lat.element] + [lat.pair] * (len(nodes) - 2)
@@ -251,4 +254,4 @@ def build_schedule(order: StreamOrder, lanes: int, node_lanes: int, lat: Latenci
             f"groups of {Q} nodes ({max_window_groups * Q} nodes); use more node lanes (--node-lanes), "
             f"or the phased core (--core phased)")
     return StreamSchedule(N, P, Q, Gs, C, Ce, Cp, int(T), int(Wg), lat, fill, retire, first_read, last_read,
-                          first_write, last_write, order.bandwidth, binding, bounds)
+                          first_write, last_write, order.bandwidth, binding, bounds, Pp if Pn else 0)

@@ -48,9 +48,9 @@ def run(args) -> int:
         check_device(args.device)
         if args.fmax_mhz is None:
             check_tools(place_and_route=True)
-    elif (any(v is not None for v in (args.preset, args.fmax_mhz)) or args.lanes != 1 or args.node_lanes != 1
-          or args.core != "auto"):
-        raise UsageError("--preset, --lanes, --node-lanes, --core and --fmax-mhz belong to --backend fpga")
+    elif (any(v is not None for v in (args.preset, args.fmax_mhz, args.pair_lanes)) or args.lanes != 1
+          or args.node_lanes != 1 or args.core != "auto"):
+        raise UsageError("--preset, --lanes, --node-lanes, --pair-lanes, --core and --fmax-mhz belong to --backend fpga")
     sizes = args.sizes or ([10_000] if args.backend == "fpga" else list(bench.SIZES))
     for n in sizes:
         check_square_fits(n, args.backend)
@@ -62,6 +62,7 @@ def run(args) -> int:
     fpga = {}
     if args.backend == "fpga":
         fpga = dict(preset=args.preset or "auto", lanes=args.lanes, node_lanes=args.node_lanes, core=args.core,
+                    pair_lanes=args.pair_lanes,
                     simulator=args.simulator, steps=args.hdl_steps, fmax_mhz=args.fmax_mhz, device=args.device,
                     log=None if args.json else (lambda m: print(f"  {m}", flush=True)))
     rows = bench.run(args.backend, sizes=sizes, min_seconds=args.seconds, scene=scene, **fpga)
@@ -90,7 +91,7 @@ def _haptic(args, scene) -> int:
     if args.backend not in HAPTIC_BACKENDS:
         raise UsageError(f"--haptic measures {', '.join(HAPTIC_BACKENDS)}, not '{args.backend}' (the FPGA's probe "
                          f"port: --backend fpga --scene with a [probe], without --haptic)")
-    if args.sizes or args.fmax_mhz is not None or args.lanes != 1 or args.node_lanes != 1:
+    if args.sizes or args.fmax_mhz is not None or args.lanes != 1 or args.node_lanes != 1 or args.pair_lanes:
         raise UsageError("--haptic takes --scene, --backend, --samples, --seconds and --preset")
     r = haptic_rates(scene, args.backend, args.samples, args.seconds, args.preset or "wide")
     if args.json:
@@ -109,7 +110,8 @@ def _haptic(args, scene) -> int:
 def _print_fpga(rows) -> None:
     for r in rows:
         print(f"{r['scene']}: {r['elements']} elements, {r['nodes']} nodes, preset {r['preset']}, "
-              f"P = {r['lanes']}, Q = {r['node_lanes']}: {r['cycles_per_step']:.0f} cycles/step ({r['simulator']}: "
+              f"P = {r['lanes']}, " + (f"Pp = {r['pair_lanes']}, " if r.get("pair_lanes") else "")
+              + f"Q = {r['node_lanes']}: {r['cycles_per_step']:.0f} cycles/step ({r['simulator']}: "
               f"{r['simulator_cycles_per_s']:.0f} cycles/s, host interface included)")
         err = r.get("error_vs_golden")
         print(f"  {r['preset_why']}; its position error against golden: "

@@ -58,6 +58,9 @@ def lane_arguments(parser) -> None:
                         help=f"hardware: element (and pair) lanes P in 1..{MAX_LANES} (default 1)")
     parser.add_argument("--node-lanes", type=lane_count, default=1,
                         help=f"hardware: node lanes Q in 1..{MAX_LANES} (default 1)")
+    parser.add_argument("--pair-lanes", type=lane_count, default=None,
+                        help=f"hardware: the streaming core's topology-pair lanes in 1..{MAX_LANES} (default: as "
+                             f"many as --lanes; scenes with more pairs than elements run faster with more)")
     parser.add_argument("--core", choices=("auto", "phased", "stream"), default="auto",
                         help="hardware: the streaming core (hw/stream/) or the phased one (hw/core.py); default "
                              "auto: streaming unless the scene has collisions")
@@ -133,8 +136,8 @@ def hardware_model(args):
     system = load_system(args.scene)
     if args.full:
         system = emit.full_featured(system)
-    from hw.stream import resolve_core              # a core the scene cannot have: refused before the range analysis
-    resolve_core(system, getattr(args, "core", "auto"))
+    from hw.stream import check_pair_lanes, resolve_core    # a core the scene cannot have: refused before the range analysis
+    check_pair_lanes(resolve_core(system, getattr(args, "core", "auto")), getattr(args, "pair_lanes", None))
     check_backend_fits(system, "amaranth")           # the core is elaborated: before the range analysis
     if args.preset == "auto":
         args.preset = choose_preset(system)

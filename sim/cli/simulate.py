@@ -32,8 +32,8 @@ def run(args) -> int:
         check_simulator(args.backend)
     system = load_system(args.scene)
     if args.backend in ("amaranth", "icarus", "verilator"):
-        from hw.stream import resolve_core          # a core the scene cannot have: refused before any run
-        resolve_core(system, args.core)
+        from hw.stream import check_pair_lanes, resolve_core    # a core the scene cannot have: refused first
+        check_pair_lanes(resolve_core(system, args.core), args.pair_lanes)
     refuse_if_unstable(system, args.force)
     check_frames_fit(system, args.steps, args.every)
     check_backend_fits(system, args.backend, args.steps)
@@ -42,7 +42,8 @@ def run(args) -> int:
         bt = bit_true_model(system, args.preset, args.steps)
         warn_stagnation(bt)
     run = run_backend(system, args.backend, args.steps, args.every, progress=True, preset=args.preset,
-                      lanes=args.lanes, node_lanes=args.node_lanes, bittrue=bt, core=args.core)
+                      lanes=args.lanes, node_lanes=args.node_lanes, bittrue=bt, core=args.core,
+                      pair_lanes=args.pair_lanes)
     runfile.save(args.out, runfile.run_arrays(system, run, args.backend))
     steps = int(round(run.t[-1] / system.dt))
     print(f"{system.name}: {steps} steps of {system.dt:g} s "

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from sim.synth import ROUTERS
+
 from .common import PRESET_CHOICES, hardware_model, lane_arguments, positive_float, scene_argument
 from .verilog import full_argument
 
@@ -16,6 +18,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
     parser.add_argument("--device", default="ecp5-85k", help="ecp5-85k (default), ecp5-45k, ecp5-25k, ecp5-12k")
     parser.add_argument("--clock-mhz", type=positive_float, default=100.0, help="clock constraint (default 100 MHz)")
+    parser.add_argument("--router", choices=ROUTERS, default="router1",
+                        help="nextpnr's router (default router1, nextpnr's own; router2 gets through congested "
+                             "designs sooner)")
     parser.add_argument("--preset", default="auto", choices=PRESET_CHOICES,
                         help="number-format preset (default auto: the narrowest whose bit-true run stays within 1e-3 "
                              "of the object size of golden on the scene; narrow's products fit 18x18 multipliers)")
@@ -47,9 +52,10 @@ def run(args) -> int:
 
 
 def _synthesize(args, bt, out: Path, emit, synthesize):
-    man = emit.write(bt, out, lanes=args.lanes, node_lanes=args.node_lanes, core=args.core, ram="ecp5")
+    man = emit.write(bt, out, lanes=args.lanes, node_lanes=args.node_lanes, core=args.core, ram="ecp5",
+                     pair_lanes=args.pair_lanes)
     r = synthesize(out / man["verilog"], man["top"], out, device=args.device, clock_mhz=args.clock_mhz,
-                   progress=True, place_and_route=args.pnr)
+                   progress=True, place_and_route=args.pnr, router=args.router)
     r.update(scene=man["scene"], preset=man["preset"], full_featured=args.full, lanes=man["lanes"],
              elements=man["elements"], nodes=man["nodes"], units_present=[u["unit"] for u in man["units_present"]])
     cps = man["cycles_per_step"]["value"]

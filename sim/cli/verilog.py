@@ -25,7 +25,8 @@ def run(args) -> int:
     check_output_dir(args.out)                     # before the range analysis
     bt = hardware_model(args)
     with output_directory(args.out) as tmp:        # whole or not at all: core.v and manifest.json together
-        man = emit.write(bt, tmp, lanes=args.lanes, node_lanes=args.node_lanes, core=args.core)
+        man = emit.write(bt, tmp, lanes=args.lanes, node_lanes=args.node_lanes, core=args.core,
+                         pair_lanes=args.pair_lanes)
     cps = man["cycles_per_step"]
     print(f"wrote {args.out}/{man['verilog']} ({len(man['verilog_modules'])} modules, {man['core']} core) and manifest.json")
     print(f"  units: {', '.join(u['unit'] for u in man['units_present'])}")
