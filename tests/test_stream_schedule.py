@@ -2,7 +2,7 @@
 
 The replay below knows only the hardware's timing conventions (restated here, not imported): item k of
 a stream runs in lane k % P at slot k // P, its window read is presented 2 cycles after issue (block RAM
-latency), its contribution is written RMW = 2 cycles after its pipeline stage; a read presented in the
+latency), its contribution is written RMW = 3 cycles after its pipeline stage; a read presented in the
 cycle of a write to the same word is undefined. It takes from the schedule only its decisions (the fill
 and retirement cycle of every group, the period T, the window Wg, the prologue A0), replays a few steps
 of every memory's writes and reads, and checks: every window read (items', node lanes') sees the group
@@ -26,7 +26,7 @@ from hw.stream.schedule import BandwidthError, Latencies, build_schedule
 
 from conftest import scene_system
 
-MEM, RMW = 2, 2          # block RAM read latency; a force ring word is written RMW cycles after its read
+MEM, RMW = 2, 3          # block RAM read latency; a force ring word is written RMW cycles after its read
 
 
 class Violation(AssertionError):

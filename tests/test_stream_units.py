@@ -201,8 +201,8 @@ def test_force_ring_sums_exactly_with_forwarding_and_first_flags(kind):
             totals.setdefault(it[0], [0] * D)
             totals[it[0]] = [a + b for a, b in zip(totals[it[0]], it[1])]
     # the node lanes read a node's sums after its last write (last + RMW + 1) and before its slot's next
-    # node writes: read every node at its last item + 3 (nodes W apart are far enough in this stream)
-    reads = {last[n] + 3: n for n in totals}
+    # node writes: read every node at its last item + RMW + 1 (nodes W apart are far enough in this stream)
+    reads = {last[n] + dut.rmw + 1: n for n in totals}
     got = {}
     log = []
 

@@ -5,6 +5,7 @@ tools/stream_fit.py). Latency = the sample kernel's stages + run_cycles(k) + DON
 hw/stream/probeport.py `ProbePort.latency`.
 
     python tools/probe_latency.py poke-2d-1000-elements 3.125 5 4 wide [85.8 98.1]   # scene, refinement, P, Q, preset, MHz...
+    python tools/probe_latency.py poke-2d-1000-elements 1 2,3 2 medium 65            # P,Pp: pair lanes apart
 """
 from __future__ import annotations
 
@@ -34,7 +35,8 @@ def main(argv) -> int:
     from hw.bittrue import BitTrue
     from hw.stream.config import StreamConfig
     from hw.stream.probeport import DONE_STAGES
-    scene, factor, P, Q, preset = argv[0], float(argv[1]), int(argv[2]), int(argv[3]), argv[4]
+    scene, factor, Q, preset = argv[0], float(argv[1]), int(argv[3]), argv[4]
+    P, Pp = (int(v) for v in argv[2].split(",")) if "," in argv[2] else (int(argv[2]), None)
     clocks = [float(v) for v in argv[5:]] or [100.0]
     small = load_scene(scene)
     formats = BitTrue(small, preset).formats
@@ -44,14 +46,14 @@ def main(argv) -> int:
         big = load_scene(str(path))
     for name, system in ((scene, small), (f"{scene} x{factor:g}", big)):
         try:
-            cfg = StreamConfig.of(BitTrue(system, preset, formats=formats), P, Q)
+            cfg = StreamConfig.of(BitTrue(system, preset, formats=formats), P, Q, pair_lanes=Pp)
         except (RheoError, ValueError) as exc:
             print(f"{name}: {system.n_elements} elements, P {P}, Q {Q}: refused: {exc}", flush=True)
             continue
         sch = cfg.schedule
         latency = cfg.probe_dry.stage + sch.run_cycles(int(cfg.params.probe["k"])) + DONE_STAGES
         at = ", ".join(f"{latency / mhz:.1f} us at {mhz:g} MHz" for mhz in clocks)
-        print(f"{name}: {system.n_elements} elements, {system.n_nodes} nodes, P {P}, Q {Q}, {preset}: "
+        print(f"{name}: {system.n_elements} elements, {system.n_nodes} nodes, P {P}, Pp {cfg.pair_lanes}, Q {Q}, {preset}: "
               f"T {sch.period} (element slots {sch.element_slots}, pair slots {sch.pair_slots}), "
               f"latency {latency} cycles = {at}", flush=True)
     return 0

@@ -2,17 +2,23 @@
 
 Every element lane has one for node i and one for node j, every pair lane one per role. A contribution
 (`add`: the node's window slot and bank, D raw words in the "fe" format) is presented in cycle t, the
-cycle its pipeline stage reads the ring (stage s of the lane); its sum is written at t + RMW (RMW = 2):
+cycle its pipeline stage reads the ring (stage s of the lane); its sum is written at t + RMW (RMW = 3,
+hw/stream/schedule.py):
 
   t      the ring word at (slot, bank) is read (block RAM, data at t + 2)
-  t + 1  flag: did the item one ahead (now at t + 2) write this word?  (registered compare)
+  t + 1  flags: did the items one, two, three ahead write this word?  (registered compares)
   t + 2  old = 0 if this is the lane's first contribution to the node in this step (`first`), else the
-         sum the item one ahead wrote (if it wrote this word), else the one two ahead wrote (if it did),
-         else the word read; new = old + value (exact, `acc_bits` bits per dimension), written into the
-         ring and into segment `bank` of the node lanes' copy (slot `slot`)
+         sum of the nearest item ahead (one, two or three) that wrote this word, else the word read;
+         new = old + value (exact, `acc_bits` bits per dimension), registered
+  t + 3  the registered sum is written into the ring and into segment `bank` of the node lanes' copy
+         (slot `slot`)
 
-The items one and two ahead write in the cycles of this item's read and the next, which the read cannot
-see (and the first of them is undefined on a block RAM): their sums come from registers instead. The
+The register between the sum and the block RAM's write port keeps the loop of a read-modify-write off
+one cycle: the block RAM may sit far from its adder (nextpnr on the 1e3 square, medium: 12.7 ns of
+routing out of and back into one DP16KD in a cycle, 65.6 MHz, when the sum was written unregistered).
+The items one to three ahead write in the cycles of this item's read and the two before it, which the
+read cannot see (and the one in its cycle is undefined on a block RAM): their sums come from registers
+instead. The
 `first` flag makes a ring that is never cleared: the word a node takes over still holds the sum of the
 node that had the slot before (W nodes earlier), and the schedule guarantees the node lanes read that sum
 before this write (hw/stream/schedule.py). II = 1, no stalls; a sum is in the node copy, readable,
@@ -29,8 +35,7 @@ from amaranth.lib.wiring import In, Out
 
 from .bram import LATENCY, BlockRam, ram_record
 from .nodeword import bits_for, delay
-
-RMW = 2
+from .schedule import RMW
 
 
 def ContributionSignature(dim: int, fe_bits: int, node_lanes: int, window_groups: int):
@@ -75,29 +80,34 @@ class ForceRing(wiring.Component):
         add = self.add
         word0 = Cat(add.bank, add.slot) if self.Q > 1 else add.slot
         m.d.comb += ring.r_addr.eq(word0)
-        word1, word2 = delay(m, word0, 1, "word"), delay(m, word0, 2, "word")
-        word3 = delay(m, word2, 1, "word3")
-        en2 = delay(m, add.valid, 2, "valid")
-        en3 = delay(m, en2, 1, "valid3")
+        assert RMW == 3, "the forwarding below covers the three items ahead of a read"
+        word1 = delay(m, word0, 1, "word1")
+        words = {1: word1}
+        for k in range(2, 5):
+            words[k] = delay(m, words[k - 1], 1, f"word{k}")
+        en = {2: delay(m, add.valid, 2, "valid2")}
+        for k in range(3, 5):
+            en[k] = delay(m, en[k - 1], 1, f"valid{k}")
         first2 = delay(m, add.first, 2, "first")
         value2 = delay(m, add.value, 2, "value")
-        slot2, bank2 = delay(m, add.slot, 2, "slot"), delay(m, add.bank, 2, "bank")
-        # forwarding flags for the item now one stage before the write (registered compares)
-        fwd1, fwd2 = Signal(), Signal()
-        m.d.sync += [fwd1.eq(en2 & (word1 == word2)), fwd2.eq(en3 & (word1 == word3))]
+        slot3, bank3 = delay(m, add.slot, 3, "slot"), delay(m, add.bank, 3, "bank")
+        # forwarding flags for the item now at t + 2: did the item j ahead (j = 1, 2, 3) write its word?
+        # Registered compares at t + 1, of this item's word (word1) and the item j ahead's (word 1 + j)
+        fwd = {j: Signal(name=f"fwd{j}") for j in (1, 2, 3)}
+        m.d.sync += [fwd[j].eq(en[1 + j] & (word1 == words[1 + j])) for j in (1, 2, 3)]
         sums = []
         for k in range(D):
             rd = ring.r_data[k * A:(k + 1) * A].as_signed()
-            last1, last2 = Signal(signed(A), name=f"last1_{k}"), Signal(signed(A), name=f"last2_{k}")
+            last = {j: Signal(signed(A), name=f"last{j}_{k}") for j in (1, 2, 3)}   # sums 1, 2, 3 ahead
             new = Signal(signed(A), name=f"sum_{k}")
-            old = Mux(first2, 0, Mux(fwd1, last1, Mux(fwd2, last2, rd)))
+            old = Mux(first2, 0, Mux(fwd[1], last[1], Mux(fwd[2], last[2], Mux(fwd[3], last[3], rd))))
             m.d.comb += new.eq(old + value2[k * F:(k + 1) * F].as_signed())
-            m.d.sync += [last1.eq(new), last2.eq(last1)]
-            sums.append(new)
+            m.d.sync += [last[1].eq(new), last[2].eq(last[1]), last[3].eq(last[2])]
+            sums.append(last[1])                  # at t + 3: this item's sum, registered
         word = Cat(*sums)
-        m.d.comb += [ring.w_addr.eq(word2), ring.w_data.eq(word), ring.w_en.eq(en2),
-                     copy.w_addr.eq(slot2), copy.w_data.eq(word.replicate(self.Q)),
-                     copy.w_en.eq(Cat(*[en2 & (bank2 == q) for q in range(self.Q)])),
+        m.d.comb += [ring.w_addr.eq(words[3]), ring.w_data.eq(word), ring.w_en.eq(en[3]),
+                     copy.w_addr.eq(slot3), copy.w_data.eq(word.replicate(self.Q)),
+                     copy.w_en.eq(Cat(*[en[3] & (bank3 == q) for q in range(self.Q)])),
                      copy.r_addr.eq(self.node_addr), self.node_data.eq(copy.r_data)]
         return m
 
@@ -111,8 +121,8 @@ class RunSum(wiring.Component):
     t + RMW, readable from t + RMW + 1.
 
       t      sum = (0 if `first` else the running sum) + value; the running sum takes it
-      t + 1  the sum, registered
-      t + 2  written into segment `bank` of slot `slot` of the node copy if the item was a run's last
+      t + 1  the sum, registered (RMW - 1 registers in all)
+      t + 3  written into segment `bank` of slot `slot` of the node copy if the item was a run's last
     """
 
     def __init__(self, dim: int, fe_bits: int, acc_bits: int, node_lanes: int, window_groups: int,

@@ -10,7 +10,7 @@ the fill reads a group from the node store, a node lane retires one node of a gr
   issue      slot c: the lane's ROM (and its a word) is read; ROM data at c + M (M = MEMORY = 2)
   ring read  c + M: the node's window address is presented; x, u at c + 2M (the pipeline's stage 2M)
   contrib.   c + s: the pipeline's force (stage s: `Latencies.element` / `.pair`) reads its force ring;
-             the sum is written at c + s + RMW (RMW = 2), readable from c + s + RMW + 1
+             the sum is written at c + s + RMW (RMW = 3), readable from c + s + RMW + 1
   fill       t_f[g]: the node store's word g is read; written into every window copy at t_f[g] + M,
              readable by a read presented from t_f[g] + M + 1
   retire     t_r[g]: the node lanes present group g's window and force ring addresses; results at
@@ -50,7 +50,8 @@ import numpy as np
 from .order import StreamOrder
 
 MEMORY = 2            # block RAM: address presented in cycle t, data (from its output register) in t + 2
-RMW = 2               # a force ring word read at stage s is written back at stage s + RMW
+RMW = 3               # a force ring word read at stage s is written back at stage s + RMW (its sum
+                      # registered before the block RAM's write port: hw/stream/forcering.py)
 LOOKAHEAD = 2         # the phase ROMs are read this many cycles ahead of their process
 SAT_TAIL = 5          # from a node's last result stage to the core's saturation count register (lane
                       # register 2, SaturationCounter 3)
