@@ -7,7 +7,11 @@ saturation (hw/rtl_fixed.py). There is one description of the physics, and the t
 
 Schedule (as soon as possible, no stalls; II = 1):
 - every value carries the pipeline stage at which it is valid; an operation waits for its latest
-  operand, earlier operands are delayed by shift registers (shared between users);
+  operand, earlier operands are delayed (shared between users): by a chain of registers over fewer than
+  `LINE_MIN` stages, else by a delay line in a 16-word LUT RAM (`delay_line`: the ECP5's distributed RAM,
+  TRELLIS_DPR16X4, with a registered output) that spans up to `LINE_MAX` stages, chained for longer
+  delays; nearly all of a lane's delay flip-flops were in such long chains (the 1e3 poke core at P = 2,
+  Pp = 3 had 43k of its 68k flip-flops in them, and nextpnr could not place it on an LFE5U-85F);
 - multiply: 1 + `product_latency` stages (hw/rtl_fixed.py): 2 when both operands fit one 18x18
   multiplier (exact product register, then round/saturate register), 3 when one is wider (registered
   DSP-sized partial products, their exact sum, then round/saturate); a product by a constant built from
@@ -27,13 +31,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from amaranth.hdl import Const, Module, Mux, Signal, Value
+from amaranth.hdl import Const, Module, Mux, Signal, Value, unsigned
+from amaranth.lib.memory import Memory
 
 from .arith import Arith, Gate
 from .fixed import Saturations, Shape
 from .rtl_fixed import FixedValue, as_shape, constant_product, pipelined_product, tree_sum
 
 OP_LATENCY = 1
+LINE_WORDS = 16          # a delay line's memory: one TRELLIS_DPR16X4 deep
+LINE_MIN = 4             # delays of this many stages or more go through delay lines
+LINE_MAX = LINE_WORDS    # the longest one line spans (its read never meets the write of its cycle)
 
 
 @dataclass
@@ -128,6 +136,8 @@ class PipeArith(Arith):
         self.param_source, self.param_stage = param_source, param_stage
         self._valid = {0: valid}
         self._delays = {}
+        self._taps = {}                        # id(sig) -> {stage: the value at that stage}
+        self._line_addr = None                 # the delay lines' write address (one counter a lane)
         self._n = 0
         self.sat_sources: list[SatSource] = []
         self.const_sat = Saturations()
@@ -164,17 +174,48 @@ class PipeArith(Arith):
         return self._valid[stage]
 
     def delay(self, sig: Value, src: int | None, dst: int) -> Value:
-        """sig (valid at stage src) as seen at stage dst >= src."""
+        """sig (valid at stage src) as seen at stage dst >= src: from the nearest stage at or before dst
+        at which it is already available (a tap), by registers when that is fewer than LINE_MIN stages
+        back, else by delay lines."""
         if src is None or src == dst:
             return sig
         if dst < src:
             raise AssertionError(f"value of stage {src} wanted at earlier stage {dst}")
         key = (id(sig), dst)
         if key not in self._delays:
-            prev = self.delay(sig, src, dst - 1)
-            self._delays[key] = (self._reg(prev, sig.shape(), "dly"), sig)   # keep sig alive for id()
+            taps = self._taps.setdefault(id(sig), {src: sig})
+            base = max(st for st in taps if st <= dst)
+            if dst - base < LINE_MIN:
+                prev = self.delay(sig, src, dst - 1)
+                out = self._reg(prev, sig.shape(), "dly")
+            else:
+                span = min(dst - base, LINE_MAX)
+                if dst - base - span and dst - base - span < LINE_MIN:
+                    span = dst - base - LINE_MIN        # leave the last piece long enough for a line
+                out = self._line(taps[base], span)
+                if base + span < dst:
+                    self._delays[(id(sig), base + span)] = (out, sig)
+                    taps[base + span] = out
+                    out = self.delay(sig, src, dst)
+            self._delays[key] = (out, sig)     # keep sig alive for id()
+            taps[dst] = out
         self.depth = max(self.depth, dst)
         return self._delays[key][0]
+
+    def _line(self, value: Value, span: int) -> Value:
+        """`value` `span` cycles later (LINE_MIN <= span <= LINE_MAX) through a delay line: written every
+        cycle at the lane's counter, read combinationally span - 1 words back, the word registered."""
+        assert LINE_MIN <= span <= LINE_MAX, span
+        if self._line_addr is None:
+            self._line_addr = Signal(range(LINE_WORDS), name=f"{self.name}_line_addr")
+            self.m.d.sync += self._line_addr.eq(self._line_addr + 1)
+        width = value.shape().width
+        mem = Memory(shape=unsigned(width), depth=LINE_WORDS, init=[])
+        self.m.submodules[self._name("line")] = mem
+        wr, rd = mem.write_port(), mem.read_port(domain="comb")
+        self.m.d.comb += [wr.addr.eq(self._line_addr), wr.data.eq(value), wr.en.eq(1),
+                          rd.addr.eq(self._line_addr - (span - 1))]
+        return self._reg(rd.data, value.shape(), "line")
 
     @staticmethod
     def _stage(*vals):
