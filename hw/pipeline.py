@@ -12,9 +12,12 @@ Schedule (as soon as possible, no stalls; II = 1):
   TRELLIS_DPR16X4, with a registered output) that spans up to `LINE_MAX` stages, chained for longer
   delays; nearly all of a lane's delay flip-flops were in such long chains (the 1e3 poke core at P = 2,
   Pp = 3 had 43k of its 68k flip-flops in them, and nextpnr could not place it on an LFE5U-85F);
-- multiply: 1 + `product_latency` stages (hw/rtl_fixed.py): 2 when both operands fit one 18x18
-  multiplier (exact product register, then round/saturate register), 3 when one is wider (registered
-  DSP-sized partial products, their exact sum, then round/saturate); a product by a constant built from
+- multiply: 1 + DSP_REGS + `product_latency` stages (hw/rtl_fixed.py): 4 when both operands fit one
+  18x18 multiplier (operand registers, exact product register, its copy, then round/saturate register),
+  5 when one is wider (registered DSP-sized partial products, their exact sum); the operand registers and
+  the product's copy serve the multiplier alone, so that the placer can put them beside its DSP block
+  (nextpnr on the 1e3 square, medium: a multiplier between two far flip-flops took 3.9 ns of logic and
+  8.8 ns of routing, 75.7 MHz); a product by a constant built from
   shifts and adds (`constant_product`) takes 1 + its stated latency (the same, or 3 for a constant of 5 or
   more signed digits by an operand that fits one multiplier); add, subtract, sum of terms, negate,
   convert, select: 1 stage; comparisons and boolean logic: 0 stages (combinational, folded into the select
@@ -39,6 +42,7 @@ from .fixed import Saturations, Shape
 from .rtl_fixed import FixedValue, as_shape, constant_product, pipelined_product, tree_sum
 
 OP_LATENCY = 1
+DSP_REGS = 2             # a multiplier's own registers: its operands before it, its product after it
 LINE_WORDS = 16          # a delay line's memory: one TRELLIS_DPR16X4 deep
 LINE_MIN = 4             # delays of this many stages or more go through delay lines
 LINE_MAX = LINE_WORDS    # the longest one line spans (its read never meets the write of its cycle)
@@ -302,7 +306,13 @@ class PipeArith(Arith):
             # reinterpretation: an Operator), its bits read as the operand's format reads them
             c = Const(cv.sig.value, fc.raw.shape())
             built = constant_product(self.m, x.raw, c, name)
-        p, lat = built or pipelined_product(self.m, fa.raw, fb.raw, name)
+        if built is None:                   # multipliers: their operands and product registered beside them
+            ra, rb = (v.raw if isinstance(pv.sig, Const) else self._reg(v.raw, v.raw.shape(), "dsp_in")
+                      for v, pv in ((fa, a), (fb, b)))
+            p, lat = pipelined_product(self.m, ra, rb, name)
+            p, lat = self._reg(p, p.shape(), "dsp_out"), lat + DSP_REGS
+        else:
+            p, lat = built
         rounded = FixedValue(p, fa.f + fb.f).round(self.shape(q))
         return self._result(rounded, q, s + lat, self._gate(a, b), "mul")
 
