@@ -21,6 +21,7 @@ from hw.datapath import _node_flags, element_kernel, node_kernel, pair_kernel
 from hw.fixed import Saturations
 from hw.stream.config import StreamConfig
 from hw.stream.element import ElementLane
+from hw.stream.kernels import NODE_STAGE
 from hw.stream.node import NodeLane
 from hw.stream.pair import PairLane
 
@@ -100,8 +101,8 @@ def test_element_lane_equals_element_kernel():
     cycles = t_read + S + 4
     words = {}
     for c in range(n_items):
-        words[(t_issue + c + 4, 0)] = node_word(cfg, st.X, st.U, ni[c])
-        words[(t_issue + c + 4, 1)] = node_word(cfg, st.X, st.U, nj[c])
+        words[(t_issue + c + NODE_STAGE, 0)] = node_word(cfg, st.X, st.U, ni[c])   # the window's word
+        words[(t_issue + c + NODE_STAGE, 1)] = node_word(cfg, st.X, st.U, nj[c])
     contribs, addrs, a_read, sats = [], [], {}, np.zeros(len(dut.quantities), np.int64)
 
     def drive(t):
@@ -171,7 +172,7 @@ def test_pair_lane_equals_pair_kernel():
     t0 = 2
     for c in range(len(items)):
         for r in range(D + 1):
-            words[(t0 + c + 4, r)] = node_word(cfg, st.X, st.U, nodes[c, r])
+            words[(t0 + c + NODE_STAGE, r)] = node_word(cfg, st.X, st.U, nodes[c, r])
     got, sats = [], np.zeros(len(dut.quantities), np.int64)
 
     def drive(t):

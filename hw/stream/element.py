@@ -7,7 +7,7 @@ Item k of the element stream runs in lane k % P at slot k // P of every step (hw
              banks; whether i is the higher node; "first contribution of this lane to this node in this
              step" for the lower and the higher node, "last" for the higher; the per-element parameters)
              and a; the window read ports `ring_i`, `ring_j` get the slots
-  stage 4    x, u of nodes i and j from the window
+  stage 5    x, u of nodes i and j from the window
   ...        hw/datapath.py `element_kernel` through PipeArith (hw/stream/kernels.py), one stage per
              operation; the new a is written back at its stage (`state_stage`)
   `stage`    contributions: +fe to node i, -fe to node j, presented by node: the lower node's to the

@@ -2,9 +2,9 @@
 
 Each lane kind runs its kernel through `PipeArith` (hw/pipeline.py) with its inputs at fixed stages:
 
-  element  stage 0: issue (ROM and a read); 2: ROM fields and a; 4: x, u of nodes i and j
+  element  stage 0: issue (ROM and a read); 2: ROM fields and a; 5: x, u of nodes i and j
            (the window read presented at 2); contributions +fe (i), -fe (j) at `stage`; a at `state_stage`
-  pair     stage 0: issue; 2: ROM fields; 4: x, u of the D + 1 nodes; contributions at `stage`, each
+  pair     stage 0: issue; 2: ROM fields; 5: x, u of the D + 1 nodes; contributions at `stage`, each
            zero where the pair's gate is closed (the ring still counts the item: see ForceRing `first`)
   node     stage 0: retirement (window, force ring and ROM reads); 2: x, u, ROM fields; 4: the exact
            sum of the force rings (partial sums of up to 4 rings at 3); x, u results at `stage`; with a
@@ -28,9 +28,10 @@ from ..datapath import ProbeInputs, _node_flags, element_kernel, node_kernel, pa
 from ..pipeline import PBool, PipeArith
 from ..rtl_fixed import as_shape
 from .bram import LATENCY
+from .window import NODE_READ_LATENCY
 
 ROM_STAGE = LATENCY               # ROM fields (and a) valid at stage 2
-NODE_STAGE = 2 * LATENCY          # x, u at stage 4 (window read presented at stage 2)
+NODE_STAGE = ROM_STAGE + NODE_READ_LATENCY   # x, u at stage 5 (window read presented at stage 2)
 FORCE_STAGE = LATENCY + 2         # node lanes: the sum of the force rings, in two registered levels
 PROBE_REGS = (("P", "x"), ("Pdot", "pdot"), ("Lo", "x"), ("Hi", "x"))   # the probe's registers, their formats
 

@@ -8,7 +8,8 @@ go in *groups* of Q consecutive nodes (node n in group n // Q, bank n % Q, one n
 the fill reads a group from the node store, a node lane retires one node of a group, all in one cycle.
 
   issue      slot c: the lane's ROM (and its a word) is read; ROM data at c + M (M = MEMORY = 2)
-  ring read  c + M: the node's window address is presented; x, u at c + 2M (the pipeline's stage 2M)
+  ring read  c + M: the node's window address is presented; x, u at c + M + 3 (the pipeline's stage 5:
+             the bank's multiplexer registered, hw/stream/window.py)
   contrib.   c + s: the pipeline's force (stage s: `Latencies.element` / `.pair`) reads its force ring;
              the sum is written at c + s + RMW (RMW = 3), readable from c + s + RMW + 1
   fill       t_f[g]: the node store's word g is read; written into every window copy at t_f[g] + M,

@@ -3,8 +3,11 @@
 The ring holds Wg groups (W = Wg Q nodes, Wg a power of two). Virtual group v = k Gs + g (group g of
 step k; the index runs on across steps) lives in slot v mod Wg. The fill writes a whole group word
 (`fill`, one a cycle) into every copy; each read port reads its own copy. A node read port (`reads`)
-presents a slot and the node's bank (n % Q) and gets that node's word LATENCY = 2 cycles later; a group
-read port (`groups`: the node lanes, which retire a whole group) gets the group word. The schedule
+presents a slot and the node's bank (n % Q) and gets that node's word NODE_READ_LATENCY = 3 cycles
+later (the block RAM's 2, then the bank's multiplexer into a register: nextpnr put 4.8 ns of routing
+between a window copy and the multiplexer, which fed an element lane's first subtraction in the same
+cycle); a group read port (`groups`: the node lanes, which retire a whole group) gets the group word
+LATENCY = 2 cycles later. The schedule
 guarantees that every read sees the group its slot holds for that read's step (hw/stream/schedule.py).
 """
 from __future__ import annotations
@@ -16,9 +19,11 @@ from amaranth.lib.wiring import In, Out
 from .bram import LATENCY, BlockRam, ram_record
 from .nodeword import NodeWord, bits_for, delay, segment
 
+NODE_READ_LATENCY = LATENCY + 1
+
 
 def NodeReadSignature(word: NodeWord, node_lanes: int, window_groups: int):
-    """A node read port, from the reader's side: slot and bank out, the node word in (2 cycles later)."""
+    """A node read port, from the reader's side: slot and bank out, the node word in (3 cycles later)."""
     return wiring.Signature({"addr": Out(bits_for(window_groups)), "bank": Out(bits_for(node_lanes)),
                              "data": In(word.bits)})
 
@@ -27,7 +32,7 @@ class NodeWindow(wiring.Component):
     def __init__(self, word: NodeWord, node_lanes: int, window_groups: int, node_reads: int,
                  group_reads: int, ram: str = "sim"):
         self.word, self.Q, self.Wg, self.ram = word, node_lanes, window_groups, ram
-        self.latency = LATENCY
+        self.latency, self.node_latency = LATENCY, NODE_READ_LATENCY
         self.n_reads, self.n_groups = node_reads, group_reads
         wb, gw = bits_for(window_groups), node_lanes * word.bits
         members = {"fill_addr": In(wb), "fill_data": In(gw), "fill_en": In(1)}
@@ -57,7 +62,7 @@ class NodeWindow(wiring.Component):
                          ring.w_en.eq(self.fill_en), ring.r_addr.eq(port.addr)]
             if single:
                 bank = delay(m, port.bank, LATENCY, f"bank{k}")
-                m.d.comb += port.data.eq(segment(ring.r_data, bank, self.word.bits, self.Q))
+                m.d.sync += port.data.eq(segment(ring.r_data, bank, self.word.bits, self.Q))
             else:
                 m.d.comb += port.data.eq(ring.r_data)
         return m
