@@ -39,10 +39,9 @@ from amaranth.lib.memory import Memory
 
 from .arith import Arith, Gate
 from .fixed import Saturations, Shape
-from .rtl_fixed import FixedValue, as_shape, constant_product, pipelined_product, tree_sum
+from .rtl_fixed import DSP_REGS, FixedValue, as_shape, constant_product, pipelined_product, tree_sum
 
 OP_LATENCY = 1
-DSP_REGS = 2             # a multiplier's own registers: its operands before it, its product after it
 LINE_WORDS = 16          # a delay line's memory: one TRELLIS_DPR16X4 deep
 LINE_MIN = 4             # delays of this many stages or more go through delay lines
 LINE_MAX = LINE_WORDS    # the longest one line spans (its read never meets the write of its cycle)

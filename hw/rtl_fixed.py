@@ -24,7 +24,7 @@ from amaranth.hdl import Const as _AConst
 from .fixed import SQ, UQ, Shape
 
 __all__ = ["SQ", "UQ", "Shape", "FixedValue", "Const", "as_shape", "as_float", "DSP_BITS", "LIMB_BITS",
-           "product_latency", "pipelined_product", "tree_sum", "multipliers", "csd_digits", "shift_add_choice",
+           "product_latency", "pipelined_product", "DSP_REGS", "tree_sum", "multipliers", "csd_digits", "shift_add_choice",
            "constant_product", "CSD_ADDERS_PER_MULTIPLIER"]
 
 DSP_BITS = 18     # operand width of one MULT18X18D (18 x 18 bits, signed or unsigned)
@@ -163,6 +163,11 @@ def _operand_width(shape, signed_product: bool) -> int:
     """Bits of an operand in the product's arithmetic: Amaranth multiplies an unsigned operand by a signed
     one as a signed value with a zero sign bit (one bit more); two unsigned operands stay unsigned."""
     return shape.width + int(signed_product and not shape.signed)
+
+
+DSP_REGS = 2     # a multiplier's own registers where a pipeline builds one: its operands before it, its
+                 # product after it, so that the placer can put them beside its DSP block (hw/pipeline.py,
+                 # hw/rtl_funcunits.py); `pipelined_product` itself does not add them
 
 
 def product_latency(a_shape, b_shape) -> int:

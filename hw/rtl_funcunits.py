@@ -9,9 +9,10 @@ Phi and Psi curves of MODEL.md section 2 v2, or any other odd curve's inverse).
 
 All units are fully pipelined: they accept one input per clock cycle (initiation interval 1), never
 stall (both streams are `always_ready`), and deliver the result of an input accepted in cycle c in cycle
-c + `latency`; `o.valid` is `i.valid` delayed by `latency` cycles. Every product takes PRODUCT_LATENCY = 2
+c + `latency`; `o.valid` is `i.valid` delayed by `latency` cycles. Every product takes PRODUCT_LATENCY = 4
 cycles (hw/rtl_fixed.py `pipelined_product`: 18x18 multipliers, or rows summed in logic for an operand of
 at most 4 bits, each followed by a register, then the sum of the partial products in another register;
+a multiplier's operands and its product registered beside it, hw/rtl_fixed.py DSP_REGS;
 a product by a constant, the inverse table's scale K_raw, is shifts and adds, `constant_product`, when
 they take few adders), and every rounding (a product plus 2^(s-1), then an arithmetic right shift by s) one more, so that no
 cycle holds a multiplier and a wide adder. ROMs are
@@ -28,14 +29,16 @@ from amaranth.lib.wiring import In, Out
 
 from .fixed import Shape
 from .funcunits import InverseTable, Rsqrt, RsqrtTable
-from .rtl_fixed import constant_product, pipelined_product
+from .rtl_fixed import DSP_REGS, constant_product, pipelined_product
 
 __all__ = ["RsqrtUnit", "RsqrtTableUnit", "InverseTableUnit", "PRODUCT_LATENCY"]
 
 # cycles of every product in the units: a product wider than one 18x18 multiplier takes 2 (registered
-# partial products, then their sum: hw/rtl_fixed.py `pipelined_product`); narrower ones are delayed to 2
-# as well, so that a unit's latency does not depend on its formats
-PRODUCT_LATENCY = 2
+# partial products, then their sum: hw/rtl_fixed.py `pipelined_product`) and DSP_REGS more (its operands
+# and its product registered beside the multipliers: nextpnr had 3.2 ns of routing from a Psi table to its
+# multiplier and 1.3 ns after it, 93 MHz); narrower ones are delayed to as many, so that a unit's latency
+# does not depend on its formats
+PRODUCT_LATENCY = 2 + DSP_REGS
 
 
 def _raw_shape(shape: Shape):
@@ -92,7 +95,13 @@ class _Pipe:
         and adds when they take few adders (`constant_product`), then delay registers, so that the
         latency does not depend on the operands' widths or on the form built."""
         built = constant_product(self.m, a, b, name) if isinstance(b, int) else None
-        prod, lat = built or pipelined_product(self.m, a, b, name)
+        if built is None:                   # multipliers: their operands and product registered beside them
+            a_in, b_in = (v if isinstance(v, (int, Const)) else self.reg(v, name=f"{name}_dsp_in")
+                          for v in (a, b))
+            prod, lat = pipelined_product(self.m, a_in, b_in, name)
+            prod, lat = self.reg(prod, name=f"{name}_dsp_out"), lat + DSP_REGS
+        else:
+            prod, lat = built
         if lat > latency:
             raise AssertionError(f"product {name} takes {lat} cycles, more than the {latency} scheduled")
         return self.delay(prod, latency - lat)
@@ -125,9 +134,9 @@ class RsqrtUnit(wiring.Component):
         `value` is the model's output for x; `saturated` is 1 exactly when the model counts one
         saturation for this element (x <= 0, or a result above the output format's maximum).
     latency : int
-        ``7 + 9 * model.newton_steps`` cycles from an accepted input to its output: 3 cycles of
-        normalisation, 1 of seed ROM, 1 of ROM output register, 9 per Newton step (3 products of
-        PRODUCT_LATENCY = 2 cycles, 3 roundings of 1), 2 of denormalisation.
+        ``7 + 15 * model.newton_steps`` cycles from an accepted input to its output: 3 cycles of
+        normalisation, 1 of seed ROM, 1 of ROM output register, 15 per Newton step (3 products of
+        PRODUCT_LATENCY = 4 cycles, 3 roundings of 1), 2 of denormalisation.
 
     Algorithm (the model's steps 1-5; N = newton_steps; each cycle below ends in a register, and an
     input accepted in cycle 0 is in the register of cycle j after j clock edges):
@@ -305,7 +314,7 @@ class RsqrtTableUnit(wiring.Component):
     ----------
     i, o : as :class:`RsqrtUnit` (raw input; output ``value`` and ``saturated``).
     latency : int
-        ``8 + PRODUCT_LATENCY`` = 10 cycles: 3 of normalisation, 1 of ROM, 1 of ROM output register,
+        ``8 + PRODUCT_LATENCY`` = 12 cycles: 3 of normalisation, 1 of ROM, 1 of ROM output register,
         PRODUCT_LATENCY of the product, 1 of interpolation, 2 of denormalisation.
 
     Algorithm (the model's steps 1-5; each cycle ends in a register):
@@ -314,12 +323,12 @@ class RsqrtTableUnit(wiring.Component):
     - cycle 4: ROM of 2^S words at address Cat(j, o): o = m[M-1], j = m[M-S:M-1] (o = 1) or
       m[M-S-1:M-2] (o = 0); word = (c0 - 2^Y in Y bits, sl); frac = m[:F] (o = 1) or m[:F-1] << 1 (o = 0);
     - cycle 5: the ROM word in a register (no arithmetic after a block RAM's output);
-    - cycles 6 and 7: the product frac * sl (hw/rtl_fixed.py `pipelined_product`: F x bits(sl) bits,
+    - cycles 6 to 9: the product frac * sl (hw/rtl_fixed.py `pipelined_product`: F x bits(sl) bits,
       12 x 13 for an 18-bit output with the default 4 guard bits: one multiplier);
-    - cycle 8: y = c0 - ((frac sl + 2^(F-1)) >> F), formed in one subtraction as
+    - cycle 10: y = c0 - ((frac sl + 2^(F-1)) >> F), formed in one subtraction as
       (c0 2^F + 2^(F-1) - 1 - frac sl) >> F (an identity of floors), the constant part a concatenation
       (1, the ROM's c0 - 2^Y, then 2^(F-1) - 1 in F bits);
-    - cycles 9 and 10: denormalise and saturate, as RsqrtUnit.
+    - cycles 11 and 12: denormalise and saturate, as RsqrtUnit.
 
     Throughput: one input per cycle, no stalls.
     """
@@ -404,26 +413,26 @@ class InverseTableUnit(wiring.Component):
         the table). ``saturations`` is the number of saturations the model counts for this item (one per
         output whose interpolation uses a clipped table entry), `n` = bits of the number of outputs.
     latency : int
-        8 cycles from an accepted input to its output (4 + 2 products of PRODUCT_LATENCY = 2 cycles).
+        12 cycles from an accepted input to its output (4 + 2 products of PRODUCT_LATENCY = 4 cycles).
 
     Algorithm (the model's steps 1-4; every stage ends in a register; products are exact,
     hw/rtl_fixed.py `pipelined_product`: operands wider than one 18x18 multiplier are split into limbs
     whose partial products are registered in the first cycle and summed in the second, a product that fits
     one multiplier is registered in the first cycle and delayed in the second):
 
-    - cycles 1 and 2: product y * K_raw; comparisons y <= Y1 (below), y >= Y2 (above) in cycle 1, then
-      delayed (to cycle 3 for the position, to the output for the `below` and `above` fields);
-    - cycle 3: position pos in UQ(S, P): for pos_shift s > 0, q = y K_raw - OFF + 2^(s-1) in one
+    - cycles 1 to 4: product y * K_raw; comparisons y <= Y1 (below), y >= Y2 (above) in cycle 1, then
+      delayed (to cycle 5 for the position, to the output for the `below` and `above` fields);
+    - cycle 5: position pos in UQ(S, P): for pos_shift s > 0, q = y K_raw - OFF + 2^(s-1) in one
       subtraction and pos = clamp(q >> s, 0, 2^(S+P)); for s <= 0, pos = min(D << -s, 2^(S+P)) with
       D = max(y K_raw - OFF, 0); then 0 for y <= Y1, 2^(S+P) for y >= Y2;
-    - cycle 4: idx = pos >> P, frac = pos mod 2^P (idx = 2^S - 1, frac = 2^P at the end point 2^(S+P));
+    - cycle 6: idx = pos >> P, frac = pos mod 2^P (idx = 2^S - 1, frac = 2^P at the end point 2^(S+P));
       one ROM per output of 2^S words, read synchronously at idx. Word j holds tab[j], the difference
       tab[j+1] - tab[j] and the clip flags of entries j and j+1;
-    - cycle 5: the ROM words registered (a block RAM's clock-to-output delay leaves no room for a
+    - cycle 7: the ROM words registered (a block RAM's clock-to-output delay leaves no room for a
       multiplier in the same cycle);
-    - cycles 6 and 7: products frac * (tab[idx+1] - tab[idx]); saturation flags
-      clip[idx] | (clip[idx+1] & frac != 0) (in cycle 6, then delayed);
-    - cycle 8: out = tab[idx] + ((product + 2^(P-1)) >> P) for every table (it lies between two entries:
+    - cycles 8 to 11: products frac * (tab[idx+1] - tab[idx]); saturation flags
+      clip[idx] | (clip[idx+1] & frac != 0) (in cycle 8, then delayed);
+    - cycle 12: out = tab[idx] + ((product + 2^(P-1)) >> P) for every table (it lies between two entries:
       it always fits), and the sum of the saturation flags; the output registers.
 
     Throughput: one input per cycle, no stalls.

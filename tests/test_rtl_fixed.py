@@ -301,7 +301,8 @@ def test_pipeline_product_by_a_constant_equals_the_bit_true_model(value):
     its saturation flags. Raw constants: 98304 and -20480 (2 digits: one cycle), 39322 and -80909 (8 and 6:
     two cycles), 0, 87381 (9 digits: 8 adders, two cycles) and -87381 (9 digits and a negation: a
     multiplier)."""
-    from hw.pipeline import DSP_REGS, PipeArith
+    from hw.pipeline import PipeArith
+    from hw.rtl_fixed import DSP_REGS
     fx, fk, fq = SQ(3, 15), SQ(2, 16), SQ(2, 10)
     k_raw = int(fk.from_float(value))
     choice = shift_add_choice(signed(18), k_raw)

@@ -128,7 +128,7 @@ def _rsqrt_count(model):
 
 def _check_rsqrt(model: Rsqrt, x, idle=0.0, seed=0, expect_sat=None):
     dut = RsqrtUnit(model)
-    assert dut.latency == 7 + 9 * model.newton_steps
+    assert dut.latency == 7 + 15 * model.newton_steps     # 3 products of 4 cycles, 3 roundings a step
     sat = Saturations()
     ref = model(x, sat)
     hw = _simulate(dut, x, ("value", "saturated"), idle=idle, seed=seed)
@@ -184,7 +184,7 @@ def test_rsqrt_exhaustive_case_reaches_every_path():
 def _check_rsqrt_table(model: RsqrtTable, x, idle=0.0, seed=0, expect_sat=None):
     """RsqrtTableUnit against its model at the inputs x: values, saturation flags (total and per element)."""
     dut = RsqrtTableUnit(model)
-    assert dut.latency == 10
+    assert dut.latency == 12
     sat = Saturations()
     ref = model(x, sat)
     hw = _simulate(dut, x, ("value", "saturated"), idle=idle, seed=seed)
@@ -300,7 +300,7 @@ def _inverse_count(model):
 def _check_inverse(model: InverseTable, x, idle=0.0, seed=0):
     """Every output field of an InverseTableUnit against the model at the magnitudes x."""
     dut = InverseTableUnit(model)
-    assert dut.latency == 8
+    assert dut.latency == 12
     n = len(model.out_shapes)
     assert dut.output_fields == tuple(f"out{k}" for k in range(n))
     sat = Saturations()
@@ -514,7 +514,7 @@ def test_pipeline_inverse():
         events = dict(ar.saturation_events())
         with pytest.raises(ValueError, match="operand 'other' is SQ"):
             ar.inverse(ar.input(x, "other", 0), curve)
-    L = 8                                        # InverseTableUnit.latency (checked in _check_inverse)
+    L = 12                                       # InverseTableUnit.latency (checked in _check_inverse)
     assert [v.q for v in vals] == ["force", "wdot"]
     for v in (below, above, *vals):
         assert v.stage == L and v.gate is mag.gate
@@ -553,13 +553,13 @@ def test_constructor_rejects_wrong_models():
 def test_signatures_and_conversion():
     rs = Rsqrt(SQ(6, 8), UQ(4, 10), seed_bits=6, newton_steps=2)
     u = RsqrtUnit(rs)
-    assert u.latency == 25                 # 7 + 9 * 2 Newton steps
+    assert u.latency == 37                 # 7 + 15 * 2 Newton steps
     assert u.i.payload.shape() == signed(14)
     assert u.o.payload.value.shape() == unsigned(14)
     assert u.o.payload.saturated.shape() == unsigned(1)
     phi = InverseTable(UQ(8, 4), (SQ(6, 6), UQ(5, 7)), _curve("phi", (0.0, 2.0, 60.0, 20.0, 36.0)), segments_log2=4)
     d = InverseTableUnit(phi)
-    assert d.latency == 8
+    assert d.latency == 12
     assert d.i.payload.shape() == unsigned(12)
     assert d.o.payload.out0.shape() == signed(12) and d.o.payload.out1.shape() == unsigned(12)
     assert d.o.payload.below.shape() == unsigned(1) and d.o.payload.above.shape() == unsigned(1)
@@ -583,7 +583,7 @@ def test_rsqrt_table_unit_interface():
     RTLIL with its ROM."""
     md = RsqrtTable(SQ(6, 8), UQ(4, 10), segments_log2=6)
     u = RsqrtTableUnit(md)
-    assert u.latency == 10
+    assert u.latency == 12
     assert u.i.payload.shape() == signed(14)
     assert u.o.payload.value.shape() == unsigned(14) and u.o.payload.saturated.shape() == unsigned(1)
     assert u.signature.members["i"].signature == RsqrtUnit(Rsqrt(SQ(6, 8), UQ(4, 10), seed_bits=6)).signature.members["i"].signature
@@ -626,7 +626,7 @@ def test_pipeline_rsqrt_picks_the_unit_of_its_model(kind):
     ins, outs = SQ(6, 8), SQ(4, 10)
     model = (RsqrtTable(ins, outs, segments_log2=6, name="inv_l") if kind == "table"
              else Rsqrt(ins, outs, seed_bits=6, name="inv_l"))
-    L = 10 if kind == "table" else 16
+    L = 12 if kind == "table" else 22                # the units' latencies: 8 + 4, 7 + 15 (one Newton step)
     m = Module()
     valid, x = Signal(), Signal(signed(ins.width))
     ar = PipeArith(m, {"l2": ins, "inv_l": outs}, {"inv_l": model}, valid, "lane")
