@@ -8,7 +8,7 @@ saturation (hw/rtl_fixed.py). There is one description of the physics, and the t
 Schedule (as soon as possible, no stalls; II = 1):
 - every value carries the pipeline stage at which it is valid; an operation waits for its latest
   operand, earlier operands are delayed (shared between users): by a chain of registers over fewer than
-  `LINE_MIN` stages, else by a delay line in a 16-word LUT RAM (`delay_line`: the ECP5's distributed RAM,
+  `LINE_MIN` stages, else by a delay line in a 16-word LUT RAM (`_line`: the ECP5's distributed RAM,
   TRELLIS_DPR16X4, with a registered output) that spans up to `LINE_MAX` stages, chained for longer
   delays; nearly all of a lane's delay flip-flops were in such long chains (the 1e3 poke core at P = 2,
   Pp = 3 had 43k of its 68k flip-flops in them, and nextpnr could not place it on an LFE5U-85F);
@@ -39,7 +39,7 @@ from amaranth.lib.memory import Memory
 
 from .arith import Arith, Gate
 from .fixed import Saturations, Shape
-from .rtl_fixed import DSP_REGS, FixedValue, as_shape, constant_product, pipelined_product, tree_sum
+from .rtl_fixed import FixedValue, as_shape, constant_product, registered_product, tree_sum
 
 OP_LATENCY = 1
 LINE_WORDS = 16          # a delay line's memory: one TRELLIS_DPR16X4 deep
@@ -305,13 +305,7 @@ class PipeArith(Arith):
             # reinterpretation: an Operator), its bits read as the operand's format reads them
             c = Const(cv.sig.value, fc.raw.shape())
             built = constant_product(self.m, x.raw, c, name)
-        if built is None:                   # multipliers: their operands and product registered beside them
-            ra, rb = (v.raw if isinstance(pv.sig, Const) else self._reg(v.raw, v.raw.shape(), "dsp_in")
-                      for v, pv in ((fa, a), (fb, b)))
-            p, lat = pipelined_product(self.m, ra, rb, name)
-            p, lat = self._reg(p, p.shape(), "dsp_out"), lat + DSP_REGS
-        else:
-            p, lat = built
+        p, lat = built or registered_product(self.m, fa.raw, fb.raw, name)
         rounded = FixedValue(p, fa.f + fb.f).round(self.shape(q))
         return self._result(rounded, q, s + lat, self._gate(a, b), "mul")
 

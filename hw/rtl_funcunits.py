@@ -29,7 +29,7 @@ from amaranth.lib.wiring import In, Out
 
 from .fixed import Shape
 from .funcunits import InverseTable, Rsqrt, RsqrtTable
-from .rtl_fixed import DSP_REGS, constant_product, pipelined_product
+from .rtl_fixed import DSP_REGS, constant_product, registered_product
 
 __all__ = ["RsqrtUnit", "RsqrtTableUnit", "InverseTableUnit", "PRODUCT_LATENCY"]
 
@@ -95,13 +95,7 @@ class _Pipe:
         and adds when they take few adders (`constant_product`), then delay registers, so that the
         latency does not depend on the operands' widths or on the form built."""
         built = constant_product(self.m, a, b, name) if isinstance(b, int) else None
-        if built is None:                   # multipliers: their operands and product registered beside them
-            a_in, b_in = (v if isinstance(v, (int, Const)) else self.reg(v, name=f"{name}_dsp_in")
-                          for v in (a, b))
-            prod, lat = pipelined_product(self.m, a_in, b_in, name)
-            prod, lat = self.reg(prod, name=f"{name}_dsp_out"), lat + DSP_REGS
-        else:
-            prod, lat = built
+        prod, lat = built or registered_product(self.m, a, b, name)
         if lat > latency:
             raise AssertionError(f"product {name} takes {lat} cycles, more than the {latency} scheduled")
         return self.delay(prod, latency - lat)
