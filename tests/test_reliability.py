@@ -7,6 +7,7 @@ import signal
 import stat
 import subprocess
 import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -324,6 +325,32 @@ def test_sigterm_during_the_main_job_leaves_the_old_output_directory_byte_identi
     assert p.returncode == 130 and "Traceback" not in err, err
     assert _tree(d) == before
     assert sorted(x.name for x in tmp_path.iterdir()) == ["out"]
+
+
+def test_an_interrupt_python_swallows_in_a_weakref_callback_still_stops_the_command():
+    """CI saw `rheo run` go on after SIGTERM: the KeyboardInterrupt was raised inside a weakref callback,
+    where Python prints "Exception ignored" and drops it. The CLI must deliver it again."""
+    script = textwrap.dedent("""
+        import sys, time, weakref
+        import sim.cli as cli
+        class Thing: pass
+        def job(args):
+            thing = Thing()
+            def callback(ref):
+                raise KeyboardInterrupt            # as if the signal had landed in this callback
+            ref = weakref.ref(thing, callback)
+            del thing
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 5:
+                pass
+            print("went on")
+            return 0
+        cli.scenes.run = job
+        sys.exit(cli.main(["scenes"]))
+    """)
+    r = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 130 and "went on" not in r.stdout, (r.returncode, r.stdout, r.stderr)
+    assert r.stderr.strip().splitlines()[-1] == "rheo: interrupted", r.stderr
 
 
 # ---------------------------------------------------------------- 5. no noise

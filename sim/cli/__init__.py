@@ -34,6 +34,7 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     signal.signal(signal.SIGTERM, _terminated)       # SIGTERM like Ctrl-C: outputs are cleaned up alike
+    previous_hook, sys.unraisablehook = sys.unraisablehook, _interrupt_not_swallowed(sys.unraisablehook)
     try:
         return args.func(args)
     except BrokenPipeError:                          # `rheo scenes | head -1`: the reader left; no message
@@ -54,6 +55,8 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("rheo: interrupted", file=sys.stderr)
         return 130
+    finally:
+        sys.unraisablehook = previous_hook
 
 
 USER_FILE_ERRNOS = {errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EISDIR, errno.ENOTDIR,
@@ -68,3 +71,17 @@ def error_line(exc) -> str:
 
 def _terminated(signum, frame):
     raise KeyboardInterrupt
+
+
+def _interrupt_not_swallowed(default_hook):
+    """An `unraisablehook`. Python drops an exception raised inside a weakref callback or a finaliser
+    ("Exception ignored in ..."): an interrupt landing there would be lost and the run would go on (CI
+    saw `rheo run` finish its simulations after SIGTERM). This delivers it again 10 ms later, from a
+    timer: raised here, it would be dropped once more."""
+    def hook(unraisable):
+        if isinstance(unraisable.exc_value, KeyboardInterrupt):
+            signal.signal(signal.SIGALRM, _terminated)
+            signal.setitimer(signal.ITIMER_REAL, 0.01)
+        else:
+            default_hook(unraisable)
+    return hook
