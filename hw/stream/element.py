@@ -6,7 +6,9 @@ Item k of the element stream runs in lane k % P at slot k // P of every step (hw
   stage 2    ROM fields (the window slots of nodes i and j: (base + g) mod Wg for their groups g, their
              banks; whether i is the higher node; "first contribution of this lane to this node in this
              step" for the lower and the higher node, "last" for the higher; the per-element parameters)
-             and a; the window read ports `ring_i`, `ring_j` get the slots
+             and the a memory's word; the window read ports `ring_i`, `ring_j` get the slots
+  stage 3    a, registered (nextpnr had the memory's output, 4.8 ns of routing and the damper's first
+             operation in one cycle)
   stage 5    x, u of nodes i and j from the window
   ...        hw/datapath.py `element_kernel` through PipeArith (hw/stream/kernels.py), one stage per
              operation; the new a is written back at its stage (`state_stage`)
@@ -31,7 +33,7 @@ from amaranth.lib.wiring import In, Out
 from ..rtl_fixed import as_shape
 from .bram import BlockRam, ram_record
 from .forcering import ContributionSignature
-from .kernels import ROM_STAGE, build_element, first_flags, last_flags
+from .kernels import A_STAGE, ROM_STAGE, build_element, first_flags, last_flags
 from .tables import records as table_records
 from .lanerom import LaneRom
 from .nodeword import bits_for, delay
@@ -140,7 +142,8 @@ class ElementLane(wiring.Component):
         m.submodules[f"{name}_a"] = a_mem
         (Xi, Ui), (Xj, Uj) = word.unpack(self.ring_i.data), word.unpack(self.ring_j.data)
         a_shape = as_shape(fmt["a"])
-        a_raw = a_mem.r_data.as_signed() if a_shape.signed else a_mem.r_data
+        a_raw = delay(m, a_mem.r_data.as_signed() if a_shape.signed else a_mem.r_data, A_STAGE - ROM_STAGE,
+                      f"{name}_a_word")
         if self.tables is not None:
             self.tables.reset()
         built = build_element(m, p, fmt, cfg.units, valid0, name, src, a_raw, Xi, Xj, Ui, Uj, self.tables)

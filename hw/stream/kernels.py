@@ -30,7 +30,8 @@ from ..rtl_fixed import as_shape
 from .bram import LATENCY
 from .window import NODE_READ_LATENCY
 
-ROM_STAGE = LATENCY               # ROM fields (and a) valid at stage 2
+ROM_STAGE = LATENCY               # ROM fields valid at stage 2
+A_STAGE = ROM_STAGE + 1           # an element's a at stage 3: the memory's word registered beside the lane
 NODE_STAGE = ROM_STAGE + NODE_READ_LATENCY   # x, u at stage 5 (window read presented at stage 2)
 FORCE_STAGE = LATENCY + 2         # node lanes: the sum of the force rings, in two registered levels
 PROBE_REGS = (("P", "x"), ("Pdot", "pdot"), ("Lo", "x"), ("Hi", "x"))   # the probe's registers, their formats
@@ -65,7 +66,7 @@ def _signals(n, shape, name):
 def build_element(m, p, fmt, units, valid, name, src, A, Xi, Xj, Ui, Uj, tables=None) -> Built:
     ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, tables=tables)
     with ar:
-        a_in = ar.input(A, "a", ROM_STAGE)
+        a_in = ar.input(A, "a", A_STAGE)
         node = lambda vs, q: [ar.input(v, q, NODE_STAGE) for v in vs]
         fe, new_a = element_kernel(ar, p, node(Xi, "x"), node(Xj, "x"), node(Ui, "u"), node(Uj, "u"), a_in)
         fe_neg = [ar.neg(v) for v in fe]                  # node j's word (saturating, as the model)
