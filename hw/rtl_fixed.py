@@ -24,7 +24,7 @@ from amaranth.hdl import Const as _AConst
 from .fixed import SQ, UQ, Shape
 
 __all__ = ["SQ", "UQ", "Shape", "FixedValue", "Const", "as_shape", "as_float", "DSP_BITS", "LIMB_BITS",
-           "product_latency", "pipelined_product", "registered_product", "DSP_REGS", "tree_sum", "multipliers", "csd_digits", "shift_add_choice",
+           "product_latency", "pipelined_product", "registered_product", "DSP_REGS", "DSP_OPERAND_TAG", "tree_sum", "multipliers", "csd_digits", "shift_add_choice",
            "constant_product", "CSD_ADDERS_PER_MULTIPLIER"]
 
 DSP_BITS = 18     # operand width of one MULT18X18D (18 x 18 bits, signed or unsigned)
@@ -167,6 +167,9 @@ def _operand_width(shape, signed_product: bool) -> int:
 
 DSP_REGS = 2     # a multiplier's own registers (`registered_product`): its operands before it, its
                  # product after it, so that the placer can put them beside its DSP block
+DSP_OPERAND_TAG = "_dsp_in"   # in the names of the operand registers: Yosys would merge two that hold the
+                              # same value into one flip-flop feeding DSP blocks far apart (nextpnr: 2.9 ns
+                              # to the farther), so sim/synth.py marks them `keep`
 
 
 def product_latency(a_shape, b_shape) -> int:
@@ -274,7 +277,7 @@ def registered_product(m: Module, a, b, name: str) -> tuple[Value, int]:
         r = Signal(v.shape(), name=nm, reset_less=True)
         m.d.sync += r.eq(v)
         return r
-    a, b = (v if isinstance(v, (int, _AConst)) else reg(Value.cast(v), f"{name}_dsp_in") for v in (a, b))
+    a, b = (v if isinstance(v, (int, _AConst)) else reg(Value.cast(v), f"{name}{DSP_OPERAND_TAG}") for v in (a, b))
     p, lat = pipelined_product(m, a, b, name)
     return reg(p, f"{name}_dsp_out"), lat + DSP_REGS
 

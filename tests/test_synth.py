@@ -186,3 +186,31 @@ def test_yosys_only_gives_resources_without_fmax(mac_verilog, mac_result, tmp_pa
     md = (tmp_path / "report.md").read_text()
     assert "no place and route" in md and "MHz" not in md
     assert json.loads((tmp_path / "synth.json").read_text()) == r
+
+
+class SharedOperand(wiring.Component):
+    """Two products of one operand through `registered_product`: each multiplier's operand register holds
+    the same value, which Yosys would merge into one flip-flop feeding both DSP blocks."""
+    x: In(signed(18))
+    y: In(signed(18))
+    z: In(signed(18))
+    o: Out(72)
+
+    def elaborate(self, platform):
+        from hw.rtl_fixed import registered_product
+        m = Module()
+        p, _ = registered_product(m, self.x, self.y, "p")
+        q, _ = registered_product(m, self.x, self.z, "q")
+        m.d.comb += self.o.eq(Cat(p, q))
+        return m
+
+
+def test_operand_registers_of_multipliers_stay_apart(tmp_path):
+    """Each multiplier keeps its own operand registers (hw/rtl_fixed.py DSP_OPERAND_TAG): 4 x 18 operand
+    bits and 2 x 2 x 36 product bits (pipelined_product's register, registered_product's), 216 flip-flops;
+    with x's two copies merged there would be 198."""
+    src = tmp_path / "shared.v"
+    src.write_text(verilog.convert(SharedOperand(), name="shared"))
+    r = synthesize(src, "shared", tmp_path / "out", device="ecp5-85k", place_and_route=False)
+    assert r["mult18x18"] == 2
+    assert r["flip_flops"] == 4 * 18 + 4 * 36, r["flip_flops"]
