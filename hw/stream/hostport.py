@@ -2,8 +2,9 @@
 
 Word addresses, 32-bit data; writes act at once, a read answers READ_LATENCY = 3 cycles after its
 request: the request cycle presents the decoded address to the memories (block RAMs, data two cycles
-later) while the address is registered twice; the answer (a register, or the memory word sign-extended
-from its format) is selected then and registered once more. Node state: field f of the node in store
+later) while the address is registered, decoded into one select per answer and the selects registered;
+the answer (a register, or the memory word sign-extended from its format) is selected then and
+registered once more. Node state: field f of the node in store
 bank `slot`, word `word` (the renumbering's placement, StreamConfig.host_map); element state: field 0
 (a) of item `pos` of element lane `lane`. Memory writes while busy are ignored and memory reads while
 busy answer undefined words (the pipeline owns the ports). RUN n > 0 starts a run when idle; STEP is
@@ -61,31 +62,34 @@ class HostPort(wiring.Component):
             self.step_we.eq(bus.w_en & (addr == Reg.STEP) & idle), self.step_wdata.eq(bus.w_data),
             self.sat_clear.eq(bus.w_en & (addr == Reg.SATURATIONS)),
         ]
-        # reads: the address registered twice, the answer selected then and registered
+        # reads: the address registered, decoded and the decoding registered (so that the answer's
+        # multiplexer has registered selects: nextpnr had the address arithmetic and the multiplexer of
+        # the element lanes' words in one cycle), the answer selected then and registered
         r_en1, r_en2 = Signal(), Signal()
-        a1, a2 = Signal(ADDR_BITS), Signal(ADDR_BITS)
-        m.d.sync += [r_en1.eq(bus.r_en), a1.eq(addr), r_en2.eq(r_en1), a2.eq(a1)]
-        r_data = Signal(32)
+        a1 = Signal(ADDR_BITS)
+        m.d.sync += [r_en1.eq(bus.r_en), a1.eq(addr), r_en2.eq(r_en1)]
         regs = {Reg.ID: ID_WORD, Reg.RUN: self.steps_left, Reg.STATUS: Cat(self.busy, self.sat_flags.any()),
                 Reg.STEP: self.step, Reg.SATURATIONS: self.sat_count, Reg.SATURATION_FLAGS: self.sat_flags,
                 Reg.CYCLES: self.cycles}
-        with m.Switch(a2):
-            for reg, value in regs.items():
-                with m.Case(reg):
-                    m.d.comb += r_data.eq(value)
-            with m.Default():
-                n2, e2 = a2 - NODE_BASE, a2 - ELEM_BASE
-                with m.If((a2 >= NODE_BASE) & (a2 < ELEM_BASE)):
-                    field = n2 >> (wb + sb)
-                    for f, shape in enumerate(self.node_fields):
-                        raw = self.node_rdata[:shape.width]
-                        with m.If(field == f):
-                            m.d.comb += r_data.eq(raw.as_signed() if shape.signed else raw)
-                with m.Elif(a2 >= ELEM_BASE):
-                    lane = e2[pb:pb + lb]
-                    for l in range(self.P):
-                        raw = self.elem_rdata[l]
-                        with m.If(((e2 >> (pb + lb)) == 0) & (lane == l)):
-                            m.d.comb += r_data.eq(raw.as_signed() if self.a_shape.signed else raw)
+        n1, e1 = a1 - NODE_BASE, a1 - ELEM_BASE
+        is_reg = [Signal(name=f"is_{reg.name.lower()}") for reg in regs]
+        is_field = [Signal(name=f"is_field{f}") for f in range(len(self.node_fields))]
+        is_lane = [Signal(name=f"is_lane{l}") for l in range(self.P)]
+        m.d.sync += [sel.eq(a1 == reg) for sel, reg in zip(is_reg, regs)]
+        m.d.sync += [sel.eq((a1 >= NODE_BASE) & (a1 < ELEM_BASE) & ((n1 >> (wb + sb)) == f))
+                     for f, sel in enumerate(is_field)]
+        m.d.sync += [sel.eq((a1 >= ELEM_BASE) & ((e1 >> (pb + lb)) == 0) & (e1[pb:pb + lb] == l))
+                     for l, sel in enumerate(is_lane)]
+        r_data = Signal(32)
+        for sel, value in zip(is_reg, regs.values()):
+            with m.If(sel):
+                m.d.comb += r_data.eq(value)
+        for sel, shape in zip(is_field, self.node_fields):
+            raw = self.node_rdata[:shape.width]
+            with m.If(sel):
+                m.d.comb += r_data.eq(raw.as_signed() if shape.signed else raw)
+        for sel, raw in zip(is_lane, self.elem_rdata):
+            with m.If(sel):
+                m.d.comb += r_data.eq(raw.as_signed() if self.a_shape.signed else raw)
         m.d.sync += [bus.r_data.eq(r_data), bus.r_valid.eq(r_en2)]
         return m
