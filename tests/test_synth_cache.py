@@ -27,3 +27,24 @@ def test_a_yosys_only_result_does_not_answer_place_and_route(tmp_path, monkeypat
     assert r["fmax_mhz"] == 91.0 and d.name.endswith("-pnr") and runs == [False, True]
     r, d = synth.synthesize_cached(v, "rheo_core", place_and_route=False)   # the pnr result answers this too
     assert r["fmax_mhz"] == 91.0 and runs == [False, True]
+
+
+def test_a_result_of_another_yosys_script_answers_nothing(tmp_path, monkeypatch):
+    """The key holds the Yosys script: a result made before the script changed (say, before the operand
+    registers were kept apart) is not returned for the same Verilog."""
+    monkeypatch.setenv("RHEO_BUILD", str(tmp_path / "build"))
+    runs = []
+
+    def fake(verilog, top, out_dir, device, clock_mhz, progress, place_and_route):
+        runs.append(synth.DSP_OPERAND_TAG)
+        out_dir.mkdir(parents=True)
+        (out_dir / "synth.json").write_text(json.dumps({"tag": synth.DSP_OPERAND_TAG}))
+        return {"tag": synth.DSP_OPERAND_TAG}
+
+    monkeypatch.setattr(synth, "synthesize", fake)
+    v = tmp_path / "core.v"
+    v.write_text("module rheo_core; endmodule\n")
+    assert synth.synthesize_cached(v, "rheo_core")[0] == {"tag": "_dsp_in"}
+    assert synth.synthesize_cached(v, "rheo_core")[0] == {"tag": "_dsp_in"} and len(runs) == 1
+    monkeypatch.setattr(synth, "DSP_OPERAND_TAG", "_other")
+    assert synth.synthesize_cached(v, "rheo_core")[0] == {"tag": "_other"} and runs == ["_dsp_in", "_other"]
