@@ -15,6 +15,14 @@ from .core import Core
 
 TOP = "rheo_core"
 
+
+def primitive_models() -> list[Path]:
+    """The Verilog models of the ECP5 primitives a streaming core built with ram = "ecp5" instantiates
+    (DP16KD, MULT18X18D): Yosys knows the cells, simulators need these beside the core's Verilog."""
+    from .mult18x18d import MULT18X18D_MODEL
+    from .stream.bram import DP16KD_MODEL
+    return [DP16KD_MODEL, MULT18X18D_MODEL]
+
 # unit -> (scene feature that needs it, what it is); the one specialisation table
 SPECIALISATION = [
     ("element_pipeline", lambda f: True, "element pipeline: d, l, e, ldot, adot, T, +/- T e"),
@@ -84,7 +92,8 @@ def build(bt: BitTrue, lanes: int = 1, node_lanes: int = 1, core: str = "phased"
           pair_lanes: int | None = None):
     """(Core, elaborated Verilog text, manifest dict) for a bit-true model's scene and formats. `core`:
     "phased" (hw/core.py), "stream" (hw/stream/) or "auto" (stream unless collisions); `ram`: the
-    streaming core's block RAMs, "sim" (inferred) or "ecp5" (DP16KD instances); `pair_lanes`: the
+    streaming core's block RAMs and multipliers, "sim" (inferred) or "ecp5" (DP16KD and MULT18X18D
+    instances, `primitive_models`); `pair_lanes`: the
     streaming core's topology-pair lanes (default: lanes)."""
     from amaranth.back import verilog
     from .stream import build_core, resolve_core

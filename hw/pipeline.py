@@ -130,12 +130,13 @@ class PipeArith(Arith):
     `fmt`: quantity -> Shape (hw/formats.py FormatSet); `units`: the bit-true function unit models by
     name ("inv_l", ..., "phi", "psi"); `valid`: the stage-0 valid bit; `param_source(q, array)` returns the
     Amaranth value (valid at stage `param_stage`) of a per-item parameter, or of a per-item flag;
-    `tables`: where the function units' ROMs come from (None: each unit its own; hw/stream/tables.py).
+    `tables`: where the function units' ROMs come from (None: each unit its own; hw/stream/tables.py);
+    `dsp`: the multipliers' variant (hw/rtl_fixed.py DSP_VARIANTS: "ecp5" instantiates MULT18X18Ds).
     """
 
     def __init__(self, m: Module, fmt, units: dict, valid: Value, name: str, param_source=None,
-                 param_stage: int = 1, tables=None):
-        self.m, self.fmt, self.units, self.name, self.tables = m, fmt, units, name, tables
+                 param_stage: int = 1, tables=None, dsp: str = "sim"):
+        self.m, self.fmt, self.units, self.name, self.tables, self.dsp = m, fmt, units, name, tables, dsp
         self.param_source, self.param_stage = param_source, param_stage
         self._valid = {0: valid}
         self._delays = {}
@@ -305,7 +306,7 @@ class PipeArith(Arith):
             # reinterpretation: an Operator), its bits read as the operand's format reads them
             c = Const(cv.sig.value, fc.raw.shape())
             built = constant_product(self.m, x.raw, c, name)
-        p, lat = built or registered_product(self.m, fa.raw, fb.raw, name)
+        p, lat = built or registered_product(self.m, fa.raw, fb.raw, name, self.dsp)
         rounded = FixedValue(p, fa.f + fb.f).round(self.shape(q))
         return self._result(rounded, q, s + lat, self._gate(a, b), "mul")
 
@@ -368,7 +369,7 @@ class PipeArith(Arith):
         from .rtl_funcunits import RsqrtTableUnit, RsqrtUnit
         s = self._s(a)
         model = self.units[q]
-        unit = (RsqrtTableUnit if isinstance(model, RsqrtTable) else RsqrtUnit)(model, self.tables)
+        unit = (RsqrtTableUnit if isinstance(model, RsqrtTable) else RsqrtUnit)(model, self.tables, self.dsp)
         self._add_unit(self._name("rsqrt_" + q), unit)
         self.m.d.comb += [unit.i.payload.eq(self.at(a, s)), unit.i.valid.eq(self.valid_at(s))]
         out = s + unit.latency
@@ -391,7 +392,7 @@ class PipeArith(Arith):
             raise ValueError(f"inverse table '{curve.name}': {len(curve.outputs)} outputs named, the unit "
                              f"has {len(model.out_shapes)}")
         s = self._s(mag)
-        unit = InverseTableUnit(model, self.tables)
+        unit = InverseTableUnit(model, self.tables, self.dsp)
         self._add_unit(self._name("inverse_" + curve.name), unit)
         self.m.d.comb += [unit.i.payload.eq(self.at(mag, s)), unit.i.valid.eq(self.valid_at(s))]
         out = s + unit.latency

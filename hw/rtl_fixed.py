@@ -22,9 +22,10 @@ from amaranth.hdl import Cat, Module, Mux, Signal, Value, signed, unsigned
 from amaranth.hdl import Const as _AConst
 
 from .fixed import SQ, UQ, Shape
+from .mult18x18d import mult18x18d
 
 __all__ = ["SQ", "UQ", "Shape", "FixedValue", "Const", "as_shape", "as_float", "DSP_BITS", "LIMB_BITS",
-           "product_latency", "pipelined_product", "registered_product", "DSP_REGS", "DSP_OPERAND_TAG", "tree_sum", "multipliers", "csd_digits", "shift_add_choice",
+           "product_latency", "pipelined_product", "registered_product", "DSP_REGS", "DSP_VARIANTS", "DSP_OPERAND_TAG", "tree_sum", "multipliers", "csd_digits", "shift_add_choice",
            "constant_product", "CSD_ADDERS_PER_MULTIPLIER"]
 
 DSP_BITS = 18     # operand width of one MULT18X18D (18 x 18 bits, signed or unsigned)
@@ -167,6 +168,7 @@ def _operand_width(shape, signed_product: bool) -> int:
 
 DSP_REGS = 2     # a multiplier's own registers (`registered_product`): its operands before it, its
                  # product after it, so that the placer can put them beside its DSP block
+DSP_VARIANTS = ("sim", "ecp5")   # `registered_product`: multipliers as Amaranth products, or MULT18X18D instances
 DSP_OPERAND_TAG = "_dsp_in"   # in the names of the operand registers: Yosys would merge two that hold the
                               # same value into one flip-flop feeding DSP blocks far apart (nextpnr: 2.9 ns
                               # to the farther), so sim/synth.py marks them `keep`
@@ -219,6 +221,17 @@ def _mul(x: Value, y: Value) -> Value:
     return tree_sum(rows)
 
 
+def _constant_first(a: Value, b: Value) -> tuple[Value, Value, int]:
+    """(a, b, z): a constant operand 2^z c (c odd) moved first and replaced by c, so that the product is
+    (a b) 2^z, exactly; z = 0 without a constant operand."""
+    if isinstance(b, _AConst) and not isinstance(a, _AConst):
+        a, b = b, a
+    if not isinstance(a, _AConst) or a.value == 0:
+        return a, b, 0
+    c = _odd_part(a)
+    return c, b, len(a) - len(c)
+
+
 def pipelined_product(m: Module, a, b, name: str) -> tuple[Value, int]:
     """The exact product a * b (Amaranth values or integers) from a register: (value, latency).
 
@@ -237,14 +250,7 @@ def pipelined_product(m: Module, a, b, name: str) -> tuple[Value, int]:
     """
     a, b = Value.cast(a), Value.cast(b)
     shape = (a * b).shape()
-    # a constant operand with trailing zero bits: multiply by its odd part, shift the product (exact)
-    tz = 0
-    if isinstance(b, _AConst) and not isinstance(a, _AConst):
-        a, b = b, a
-    if isinstance(a, _AConst) and a.value != 0:
-        tz = (a.value & -a.value).bit_length() - 1
-        if tz:
-            a = _AConst(a.value >> tz, signed(len(a) - tz) if a.shape().signed else unsigned(len(a) - tz))
+    a, b, tz = _constant_first(a, b)
 
     def reg(value, shp, nm):
         r = Signal(shp, name=nm, reset_less=True)
@@ -269,10 +275,21 @@ def pipelined_product(m: Module, a, b, name: str) -> tuple[Value, int]:
     return result(tree_sum(parts), 2)
 
 
-def registered_product(m: Module, a, b, name: str) -> tuple[Value, int]:
+def registered_product(m: Module, a, b, name: str, dsp: str = "sim") -> tuple[Value, int]:
     """`pipelined_product` with its non-constant operands registered before it and its product after it
     (DSP_REGS cycles more): those registers serve the multipliers alone, so that the placer can put them
-    beside the DSP blocks (nextpnr had a multiplier between two far flip-flops: 8.8 ns of routing)."""
+    beside the DSP blocks (nextpnr had a multiplier between two far flip-flops: 8.8 ns of routing).
+
+    `dsp` (DSP_VARIANTS): "sim", those registers in logic, the multipliers Amaranth products (for every
+    simulator, and Yosys maps them); "ecp5", the multipliers instantiated with those registers inside them
+    (`_ecp5_product`). The latency and the value are the same."""
+    if dsp not in DSP_VARIANTS:
+        raise ValueError(f"unknown multiplier variant {dsp!r} (known: {', '.join(DSP_VARIANTS)})")
+    if dsp == "ecp5":
+        built = _ecp5_product(m, a, b, name)
+        if built is not None:
+            return built
+
     def reg(v, nm):
         r = Signal(v.shape(), name=nm, reset_less=True)
         m.d.sync += r.eq(v)
@@ -280,6 +297,58 @@ def registered_product(m: Module, a, b, name: str) -> tuple[Value, int]:
     a, b = (v if isinstance(v, (int, _AConst)) else reg(Value.cast(v), f"{name}{DSP_OPERAND_TAG}") for v in (a, b))
     p, lat = pipelined_product(m, a, b, name)
     return reg(p, f"{name}_dsp_out"), lat + DSP_REGS
+
+
+def _ecp5_product(m: Module, a, b, name: str) -> tuple[Value, int] | None:
+    """`registered_product` with MULT18X18D instances (hw/mult18x18d.py) holding its registers, cycle for
+    cycle: one multiplier's operand, product and output registers become its input, pipeline and output
+    registers; a split product's multipliers hold the operand and partial-product registers (input and
+    output), and the sum and output registers stay in logic, as do the rows of a partial product with a
+    narrow operand (`_mul`) and the registers of its operands. None when no multiplier is built (a product
+    in rows alone): the caller's logic form is the same."""
+    a, b = Value.cast(a), Value.cast(b)
+    shape = (a * b).shape()
+    a, b, tz = _constant_first(a, b)
+    if multipliers(a.shape(), b.shape()) == 0:
+        return None
+
+    def reg(value, shp, nm):
+        r = Signal(shp, name=nm, reset_less=True)
+        m.d.sync += r.eq(value)
+        return r
+
+    def dsp(x, y, pipeline, nm):
+        """x * y (operands of at most DSP_BITS bits in their product's arithmetic) from a MULT18X18D."""
+        xy = (x * y).shape()
+        x_, y_ = (_signed(v) if xy.signed else v for v in (x, y))
+        return mult18x18d(m, x_, y_, xy.signed, pipeline, nm)[:xy.width].as_signed() if xy.signed else \
+            mult18x18d(m, x_, y_, False, pipeline, nm)[:xy.width]
+
+    def shifted(p):
+        return p.shift_left(tz) if tz else p
+
+    if product_latency(a.shape(), b.shape()) == 1:             # one multiplier: 3 registers inside it
+        return shifted(dsp(a, b, True, name)), 1 + DSP_REGS
+    a_, b_ = (_signed(v) if shape.signed else v for v in (a, b))
+    limb = LIMB_BITS if shape.signed else DSP_BITS
+    operands = {}                                                # logic's operand registers, when rows need them
+
+    def registered(v, nm):
+        if nm not in operands:
+            operands[nm] = v if isinstance(v, _AConst) else reg(v, v.shape(), f"{name}_{nm}{DSP_OPERAND_TAG}")
+        return operands[nm]
+    parts = []
+    for i, (oa, la) in enumerate(_limbs(a_, limb)):
+        for j, (ob, lb) in enumerate(_limbs(b_, limb)):
+            if min(len(la), len(lb)) > ROW_BITS:                 # partial product registered in the block
+                pp = dsp(la, lb, False, f"{name}_pp{i}{j}")
+            else:
+                ra, rb = registered(a_, "a"), registered(b_, "b")
+                la_r, lb_r = dict(_limbs(ra, limb))[oa], dict(_limbs(rb, limb))[ob]
+                pp = reg(_mul(la_r, lb_r), (la_r * lb_r).shape(), f"{name}_pp{i}{j}")
+            parts.append(pp.shift_left(oa + ob))
+    total = reg(tree_sum(parts), (a * b).shape(), name)
+    return reg(shifted(total), shape, f"{name}_dsp_out"), 2 + DSP_REGS
 
 
 # ------------------------------------------------------------------------------------- constant products

@@ -60,8 +60,8 @@ class _Pipe:
     """Helpers to write pipeline registers (reset-less: a register's contents only matter when the
     valid bit that travels alongside it is set)."""
 
-    def __init__(self, m: Module):
-        self.m = m
+    def __init__(self, m: Module, dsp: str = "sim"):
+        self.m, self.dsp = m, dsp
 
     def reg(self, value, shape=None, name=None):
         """A register of `shape` (default: the value's shape) loaded with `value` every cycle."""
@@ -95,7 +95,7 @@ class _Pipe:
         and adds when they take few adders (`constant_product`), then delay registers, so that the
         latency does not depend on the operands' widths or on the form built."""
         built = constant_product(self.m, a, b, name) if isinstance(b, int) else None
-        prod, lat = built or registered_product(self.m, a, b, name)
+        prod, lat = built or registered_product(self.m, a, b, name, self.dsp)
         if lat > latency:
             raise AssertionError(f"product {name} takes {lat} cycles, more than the {latency} scheduled")
         return self.delay(prod, latency - lat)
@@ -119,6 +119,8 @@ class RsqrtUnit(wiring.Component):
     model : :class:`hw.funcunits.Rsqrt`
         The NumPy model; its formats, ROM contents (`seed_table`), mantissa width `M`, iterate width `Y`,
         `seed_bits` and `newton_steps` define the unit.
+    tables : where its ROMs come from (None: its own; hw/stream/tables.py).
+    dsp : its multipliers' variant (hw/rtl_fixed.py DSP_VARIANTS), "sim" or "ecp5".
 
     Attributes
     ----------
@@ -169,11 +171,11 @@ class RsqrtUnit(wiring.Component):
     (4 multipliers each).
     """
 
-    def __init__(self, model: Rsqrt, tables=None):
+    def __init__(self, model: Rsqrt, tables=None, dsp: str = "sim"):
         if not isinstance(model, Rsqrt):
             raise TypeError(f"RsqrtUnit needs a hw.funcunits.Rsqrt model, got {type(model).__name__} "
                             f"({model!r})")
-        self.model, self.tables = model, tables
+        self.model, self.tables, self.dsp = model, tables, dsp
         if model.seed_relative_error() >= 0.125:
             raise ValueError(f"RsqrtUnit: seed error {model.seed_relative_error():g} too large for the "
                              f"fixed internal formats")
@@ -189,7 +191,7 @@ class RsqrtUnit(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        p = _Pipe(m)
+        p = _Pipe(m, self.dsp)
         md = self.model
         M, Y, sb = md.M, md.Y, md.seed_bits
 
@@ -303,6 +305,7 @@ class RsqrtTableUnit(wiring.Component):
     model : :class:`hw.funcunits.RsqrtTable`
         The NumPy model; its formats, tables (`c0`, `slope`), mantissa width `M`, iterate width `Y`, `S`
         and `F` define the unit.
+    tables, dsp : as :class:`RsqrtUnit`.
 
     Attributes
     ----------
@@ -327,11 +330,11 @@ class RsqrtTableUnit(wiring.Component):
     Throughput: one input per cycle, no stalls.
     """
 
-    def __init__(self, model: RsqrtTable, tables=None):
+    def __init__(self, model: RsqrtTable, tables=None, dsp: str = "sim"):
         if not isinstance(model, RsqrtTable):
             raise TypeError(f"RsqrtTableUnit needs a hw.funcunits.RsqrtTable model, got {type(model).__name__} "
                             f"({model!r})")
-        self.model, self.tables = model, tables
+        self.model, self.tables, self.dsp = model, tables, dsp
         self.latency = 8 + PRODUCT_LATENCY
         # its memories, known at construction (name, depth, width): the table ROM
         layout, init = self._rom_layout()
@@ -351,7 +354,7 @@ class RsqrtTableUnit(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        p = _Pipe(m)
+        p = _Pipe(m, self.dsp)
         md = self.model
         M, Y, S, F = md.M, md.Y, md.S, md.F
 
@@ -393,6 +396,7 @@ class InverseTableUnit(wiring.Component):
         The NumPy model (the specification): thresholds `Y1`, `Y2`, scale `K_raw`, offset `OFF`,
         `pos_shift`, `S`, `P`, the tables `tabs` with their clip flags `clips`, one per output format in
         `out_shapes`.
+    tables, dsp : as :class:`RsqrtUnit`.
 
     Attributes
     ----------
@@ -432,11 +436,11 @@ class InverseTableUnit(wiring.Component):
     Throughput: one input per cycle, no stalls.
     """
 
-    def __init__(self, model: InverseTable, tables=None):
+    def __init__(self, model: InverseTable, tables=None, dsp: str = "sim"):
         if not isinstance(model, InverseTable):
             raise TypeError(f"InverseTableUnit needs a hw.funcunits.InverseTable model, got "
                             f"{type(model).__name__} ({model!r})")
-        self.model, self.tables = model, tables
+        self.model, self.tables, self.dsp = model, tables, dsp
         self.latency = 4 + 2 * PRODUCT_LATENCY
         n = len(model.out_shapes)
         self.output_fields = tuple(f"out{k}" for k in range(n))
@@ -465,7 +469,7 @@ class InverseTableUnit(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        p = _Pipe(m)
+        p = _Pipe(m, self.dsp)
         md = self.model
         ys = md.in_shape
         S, P = md.S, md.P

@@ -37,7 +37,7 @@ def build_root() -> Path:
 def emit_core(bt: BitTrue, lanes=1, node_lanes=1, root: Path | None = None, core: str = "phased",
               ram: str = "sim", pair_lanes: int | None = None):
     """Emit the core's Verilog into a directory named after its hash; returns (dir, manifest, driver).
-    A core with DP16KD instances (ram "ecp5") gets the DP16KD model beside it (simulators need it)."""
+    A core with ECP5 primitives (ram "ecp5") gets their models beside it (simulators need them)."""
     core, text, man = emit.build(bt, lanes, node_lanes, core, ram, pair_lanes)
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
     d = (root or build_root()) / f"{file_stem(bt.system.name)}-{digest}"
@@ -46,8 +46,8 @@ def emit_core(bt: BitTrue, lanes=1, node_lanes=1, root: Path | None = None, core
     if not v.exists() or v.read_text() != text:
         v.write_text(text)
     if ram == "ecp5":
-        from hw.stream.bram import DP16KD_MODEL
-        (d / DP16KD_MODEL.name).write_text(DP16KD_MODEL.read_text())
+        for model in emit.primitive_models():
+            (d / model.name).write_text(model.read_text())
     drv = HostDriver.for_map(core.cfg.host_map, core.cycles_per_step)
     return d, man, drv
 
@@ -76,7 +76,7 @@ def run_job(simulator: str, core_dir: Path, drv: HostDriver, load_words, frames,
         if progress is not None:
             env["RHEO_PROGRESS"] = str(progress_file)
         with _polling(progress_file, progress):
-            models = [p for p in [core_dir / "dp16kd.v"] if p.is_file()]
+            models = [p for p in (core_dir / m.name for m in emit.primitive_models()) if p.is_file()]
             run_cocotb(simulator=simulator, verilog_sources=[core_dir / f"{emit.TOP}.v", *models], toplevel=emit.TOP,
                        test_module="sim.cocotb_core", test_dir=SIM_DIR.parent, build_dir=core_dir / simulator,
                        extra_env=env, timeout_s=timeout_s)

@@ -9,7 +9,7 @@ import numpy as np
 from amaranth.back import verilog
 from amaranth.sim import Simulator
 
-from hw.stream.bram import DP16KD_MODEL
+from hw.emit import primitive_models
 
 TESTS = Path(__file__).resolve().parent
 BUILD = Path(os.environ.get("RHEO_BUILD", "build")) / "stream-tests"
@@ -42,7 +42,7 @@ def _port(dut, name):
 
 
 def run_verilog(dut, inputs: list[str], values, outputs: list[str], simulator: str = "icarus",
-                tag: str = "dut", extra_sources=(DP16KD_MODEL,)) -> np.ndarray:
+                tag: str = "dut", extra_sources=tuple(primitive_models())) -> np.ndarray:
     """The same on Icarus or Verilator through cocotb (tests/cocotb_vectors.py); the top's ports are the
     Amaranth names with "__" for the hierarchy separator."""
     from sim.simulators import run_cocotb

@@ -7,11 +7,14 @@ import numpy as np
 import pytest
 from amaranth.back import rtlil
 from amaranth.hdl import Module, Signal, Value, signed, unsigned
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
 from amaranth.sim import Simulator
 
 from hw.fixed import SQ, UQ, Saturations, add, mul
-from hw.rtl_fixed import (CSD_ADDERS_PER_MULTIPLIER, DSP_BITS, Const, FixedValue, as_shape, constant_product,
-                          csd_digits, multipliers, pipelined_product, product_latency, shift_add_choice)
+from hw.rtl_fixed import (CSD_ADDERS_PER_MULTIPLIER, DSP_BITS, DSP_REGS, Const, FixedValue, as_shape, constant_product,
+                          csd_digits, multipliers, pipelined_product, product_latency, registered_product,
+                          shift_add_choice)
 
 CASES = 400
 
@@ -386,3 +389,65 @@ def test_pipeline_product_by_a_constant_operand_reads_it_as_its_format(form):
     sim.add_testbench(tb)
     sim.run()
     assert got == expected
+
+
+class _Products(wiring.Component):
+    """Every case of PRODUCTS through `registered_product` of one variant: inputs a<k>,
+    b<k> (b<k> absent for a constant), outputs p<k>_0, p<k>_1 (the product's bits, 48 a port: the vectors
+    are int64)."""
+
+    def __init__(self, dsp: str):
+        self.dsp, self.latencies = dsp, []
+        members = {}
+        for k, (sa, sb, _, _) in enumerate(PRODUCTS):
+            members[f"a{k}"] = In(sa)
+            if not isinstance(sb, int):
+                members[f"b{k}"] = In(sb)
+            width = (Signal(sa) * (sb if isinstance(sb, int) else Signal(sb))).shape().width
+            members[f"p{k}_0"], members[f"p{k}_1"] = Out(min(width, 48)), Out(max(width - 48, 1))
+        super().__init__(members)
+
+    def elaborate(self, platform):
+        m = Module()
+        for k, (_, sb, _, _) in enumerate(PRODUCTS):
+            b = sb if isinstance(sb, int) else getattr(self, f"b{k}")
+            p, lat = registered_product(m, getattr(self, f"a{k}"), b, f"prod{k}", dsp=self.dsp)
+            self.latencies.append(lat)
+            m.d.comb += [getattr(self, f"p{k}_0").eq(p[:48]), getattr(self, f"p{k}_1").eq(p[48:])]
+        return m
+
+
+@pytest.mark.hdl
+def test_products_on_instantiated_multipliers_equal_the_logic_form_cycle_for_cycle():
+    """registered_product's "ecp5" variant (MULT18X18D instances holding its registers, hw/mult18x18d.py, on
+    Icarus with the model hw/mult18x18d.v) gives a * b with the latency of the "sim" variant, for every
+    shape of PRODUCTS, and instantiates as many multipliers as `multipliers` counts."""
+    from amaranth.back import verilog
+    from stream_helpers import run_verilog
+    sim_form, dsp_form = _Products("sim"), _Products("ecp5")
+    text = verilog.convert(dsp_form, name="top", emit_src=False)
+    verilog.convert(sim_form, name="top", emit_src=False)
+    assert dsp_form.latencies == sim_form.latencies == [lat + DSP_REGS for _, _, lat, _ in PRODUCTS]
+    assert len(re.findall(r"^\s*MULT18X18D\b", text, re.M)) == sum(n for *_, n in PRODUCTS)
+    assert "$mul" not in rtlil.convert(dsp_form) or sum(n for *_, n in PRODUCTS) == 0
+    rng = np.random.default_rng(18)
+    inputs, draws, widths = [], [], []
+    for k, (sa, sb, _, _) in enumerate(PRODUCTS):
+        for nm, s in [("a", sa)] + ([] if isinstance(sb, int) else [("b", sb)]):
+            lo, hi = (-(1 << (s.width - 1)), (1 << (s.width - 1)) - 1) if s.signed else (0, (1 << s.width) - 1)
+            v = [lo, hi, hi, lo, 0, min(1, hi), max(-1, lo)] + [int(x) for x in rng.integers(lo, hi, 200, endpoint=True)]
+            inputs.append(f"{nm}{k}")
+            draws.append(v[:200])
+            widths.append(s.width)
+    values = [[v[t] % (1 << w) for v, w in zip(draws, widths)] for t in range(200)]   # the ports' bits
+    outputs = [f"p{k}_{h}" for k in range(len(PRODUCTS)) for h in (0, 1)]
+    got = run_verilog(dsp_form, inputs, values, outputs, tag="mult18x18d")
+    col = {nm: draws[i] for i, nm in enumerate(inputs)}
+    for k, (sa, sb, _, _) in enumerate(PRODUCTS):
+        lat = dsp_form.latencies[k]
+        bv = [sb] * 200 if isinstance(sb, int) else col[f"b{k}"]
+        width = len(getattr(dsp_form, f"p{k}_0")) + (len(getattr(dsp_form, f"p{k}_1")) if len(getattr(dsp_form, f"p{k}_0")) == 48 else 0)
+        want = [(x * y) % (1 << width) for x, y in zip(col[f"a{k}"], bv)]
+        bits = [int(lo) + (int(hi) << 48 if width > 48 else 0) for lo, hi in got[:, 2 * k:2 * k + 2]]
+        # operands of cycle t reach the output after edge t + lat - 1 (row t + lat - 1)
+        assert bits[lat - 1:] == want[:200 - lat + 1], f"product {k}: {sa} x {sb}"

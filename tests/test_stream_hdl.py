@@ -84,6 +84,20 @@ def test_dp16kd_variant_of_a_saturating_scene_on_icarus(tmp_path):
     assert man["block_rams_dp16kd"] > 0
 
 
+def test_ecp5_primitives_variant_with_damper_tables_on_verilator():
+    """The core `rheo synth` builds (DP16KD and MULT18X18D instances with their registers, on their models)
+    of a scene with every kind of product (medium: products split into limbs; the damper's Phi and Psi
+    tables, the 1/sqrt table, constants by shifts and adds): bit for bit from mid-run, while the damper
+    moves. Every multiplier is an instance: the Verilog has no product operator left."""
+    import re
+    from hw import emit
+    bt = bittrue("press-2d-rheological", "medium")
+    _, text, man = emit.build(bt, 2, 2, "stream", "ecp5")
+    assert len(re.findall(r"^\s*MULT18X18D\b", text, re.M)) > 0
+    assert not re.search(r"[\w)\]]\s\*\s[\w($\\]", text), "a product left to Yosys"   # `$signed(a) * $signed(b)`
+    check(bt, "verilator", 600, [1, 3, 2], lanes=2, node_lanes=2, ram="ecp5")
+
+
 @pytest.mark.parametrize("seed,P,Q", [(1, 1, 2), (2, 2, 1), (3, 3, 2)])
 def test_random_small_meshes_on_icarus(tmp_path, seed, P, Q):
     """Seeded random blocks and chains with random materials and loads (as tests/test_hdl.py)."""
@@ -155,10 +169,9 @@ def _verilator():
 @pytest.mark.parametrize("ram", ["sim", "ecp5"])
 def test_emitted_verilog_passes_verilator_lint(tmp_path, ram):
     from hw import emit
-    from hw.stream.bram import DP16KD_MODEL
     bt = bittrue("press-2d-rheological", "narrow")
     man = emit.write(bt, tmp_path, 1, 1, core="stream", ram=ram)
-    extra = [str(DP16KD_MODEL)] if ram == "ecp5" else []
+    extra = [str(p) for p in emit.primitive_models()] if ram == "ecp5" else []
     r = subprocess.run([_verilator(), "--lint-only", "-Wno-WIDTH", "--top-module", man["top"],
                         str(tmp_path / man["verilog"]), *extra], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[-3000:]

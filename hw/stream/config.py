@@ -56,6 +56,9 @@ class StreamConfig:
                                 "not local to the node numbering): use the phased core (--core phased)")
         self.params, self.formats, self.units = params, formats, units
         self.lanes, self.node_lanes, self.ram = lanes, node_lanes, ram
+        # ram: "sim" (Amaranth memories and products, for every simulator) or "ecp5" (`rheo synth`: the
+        # ECP5's DP16KD block RAMs, hw/stream/bram.py, and MULT18X18D multipliers, hw/mult18x18d.py,
+        # instantiated with their registers; simulators need their models beside the core)
         self.pair_lanes = pair_lanes          # Pp: topology-pair lanes (P unless asked; scenes whose pairs
                                               # outnumber their elements run faster with more)
         self.init = init or {}

@@ -146,7 +146,7 @@ class ElementLane(wiring.Component):
                       f"{name}_a_word")
         if self.tables is not None:
             self.tables.reset()
-        built = build_element(m, p, fmt, cfg.units, valid0, name, src, a_raw, Xi, Xj, Ui, Uj, self.tables)
+        built = build_element(m, p, fmt, cfg.units, valid0, name, src, a_raw, Xi, Xj, Ui, Uj, self.tables, cfg.ram)
         assert built.stage == self.stage, f"{name}: pipeline stage {built.stage}, the schedule has {self.stage}"
         assert built.outputs["state_stage"] == self.state_stage
         ar, s = built.ar, built.stage

@@ -63,8 +63,8 @@ def _signals(n, shape, name):
     return [Signal(shape, name=f"{name}{k}") for k in range(n)]
 
 
-def build_element(m, p, fmt, units, valid, name, src, A, Xi, Xj, Ui, Uj, tables=None) -> Built:
-    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, tables=tables)
+def build_element(m, p, fmt, units, valid, name, src, A, Xi, Xj, Ui, Uj, tables=None, dsp="sim") -> Built:
+    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, tables=tables, dsp=dsp)
     with ar:
         a_in = ar.input(A, "a", A_STAGE)
         node = lambda vs, q: [ar.input(v, q, NODE_STAGE) for v in vs]
@@ -75,8 +75,8 @@ def build_element(m, p, fmt, units, valid, name, src, A, Xi, Xj, Ui, Uj, tables=
                              "state_stage": new_a.stage if new_a is not None else 0})
 
 
-def build_pair(m, p, fmt, units, valid, name, src, kernel, X_roles, U_roles, tables=None) -> Built:
-    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, tables=tables)
+def build_pair(m, p, fmt, units, valid, name, src, kernel, X_roles, U_roles, tables=None, dsp="sim") -> Built:
+    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, tables=tables, dsp=dsp)
     D = p.dim
     with ar:
         ins = [[ar.input(v, "x", NODE_STAGE) for v in X_roles[r]] for r in range(D + 1)]
@@ -90,11 +90,12 @@ def build_pair(m, p, fmt, units, valid, name, src, kernel, X_roles, U_roles, tab
     return Built(ar, stage, {"roles": roles})
 
 
-def build_node(m, p, fmt, units, valid, name, src, X, U, Fe, step, probe: ProbeInputs | None = None) -> Built:
+def build_node(m, p, fmt, units, valid, name, src, X, U, Fe, step, probe: ProbeInputs | None = None,
+               dsp="sim") -> Built:
     """`probe`: the probe's registers (signals, per dimension), held still during a run: values of no stage.
     Outputs x, u; with a probe also "probe_gate" (the node touches it) and "probe_f" (its force, pfe), both
     to be read at "probe_stage"."""
-    ar = NodeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE)
+    ar = NodeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, dsp=dsp)
     with ar:
         Xp = [ar.input(v, "x", ROM_STAGE) for v in X]
         Up = [ar.input(v, "u", ROM_STAGE) for v in U]
@@ -112,10 +113,10 @@ def build_node(m, p, fmt, units, valid, name, src, X, U, Fe, step, probe: ProbeI
     return Built(ar, stage, {"x": new_x, "u": new_u, **extra})
 
 
-def build_probe_sample(m, p, fmt, units, valid, name, P, Pprev) -> Built:
+def build_probe_sample(m, p, fmt, units, valid, name, P, Pprev, dsp="sim") -> Built:
     """The per-sample kernel: P (the sample) and Pprev (the held position) at stage 0 -> P, Pdot, Lo, Hi at
     `stage` (P delayed to it)."""
-    ar = PipeArith(m, fmt, units, valid, name)
+    ar = PipeArith(m, fmt, units, valid, name, dsp=dsp)
     with ar:
         Pi = [ar.input(v, "x", 0) for v in P]
         Pdot, Lo, Hi = probe_sample_kernel(ar, p, Pi, [ar.input(v, "x", 0) for v in Pprev])

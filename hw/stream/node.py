@@ -118,7 +118,7 @@ class NodeLane(wiring.Component):
         if self.probe_stage is not None:
             probe = ProbeInputs(*[split_words(getattr(self, f"probe_{reg}"), D, as_shape(fmt[q]))
                                   for reg, q in PROBE_REGS])
-        built = build_node(m, p, fmt, cfg.units, valid0, name, src, X, U, F, self.retire.step, probe)
+        built = build_node(m, p, fmt, cfg.units, valid0, name, src, X, U, F, self.retire.step, probe, cfg.ram)
         assert built.stage == self.stage, f"{name}: pipeline stage {built.stage}, the schedule has {self.stage}"
         ar, s = built.ar, built.stage
         if probe is not None:

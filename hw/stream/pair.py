@@ -102,7 +102,7 @@ class PairLane(wiring.Component):
 
         if self.tables is not None:
             self.tables.reset()
-        built = build_pair(m, p, fmt, cfg.units, valid0, name, src, pair_kernel, X, U, self.tables)
+        built = build_pair(m, p, fmt, cfg.units, valid0, name, src, pair_kernel, X, U, self.tables, cfg.ram)
         assert built.stage == self.stage, f"{name}: pipeline stage {built.stage}, the schedule has {self.stage}"
         ar, s = built.ar, built.stage
         rom.build(m, f"{name}_rom", slot)

@@ -99,7 +99,7 @@ class ProbePort(wiring.Component):
 
         # the sample kernel, then the registers and the run
         built = build_probe_sample(m, p, fmt, cfg.units, accept, "ps",
-                                   split_words(self.samples.payload, D, as_shape(fmt["x"])), regs["P"])
+                                   split_words(self.samples.payload, D, as_shape(fmt["x"])), regs["P"], cfg.ram)
         ar, s = built.ar, built.stage
         assert s == self.sample_stage, f"probe sample kernel: stage {s}, the dry run has {self.sample_stage}"
         load = ar.valid_at(s)
