@@ -48,3 +48,24 @@ def test_a_result_of_another_yosys_script_answers_nothing(tmp_path, monkeypatch)
     assert synth.synthesize_cached(v, "rheo_core")[0] == {"tag": "_dsp_in"} and len(runs) == 1
     monkeypatch.setattr(synth, "DSP_OPERAND_TAG", "_other")
     assert synth.synthesize_cached(v, "rheo_core")[0] == {"tag": "_other"} and runs == ["_dsp_in", "_other"]
+
+
+def test_rheo_synth_hands_its_placement_seed_to_nextpnr(tmp_path):
+    """`rheo synth --seed N` reaches synthesize() (nextpnr's --seed) and its result; the default is 1."""
+    from sim.cli import build_parser
+    from sim.cli.synth import _synthesize
+    calls = []
+
+    class FakeEmit:
+        @staticmethod
+        def write(bt, out, **kw):
+            return {"verilog": "core.v", "top": "top", "scene": "s", "preset": "narrow", "lanes": 1,
+                    "elements": 1, "nodes": 2, "units_present": [], "cycles_per_step": {"value": 10}}
+
+    def fake_synthesize(verilog, top, out, **kw):
+        calls.append(kw["seed"])
+        return {"seed": kw["seed"], "fmax_mhz": None}
+    parser = build_parser()
+    for argv, seed in ((["synth", "creep-1d", "--out", "d", "--seed", "5"], 5), (["synth", "creep-1d", "--out", "d"], 1)):
+        r, _ = _synthesize(parser.parse_args(argv), None, tmp_path, FakeEmit, fake_synthesize)
+        assert calls[-1] == seed and r["seed"] == seed

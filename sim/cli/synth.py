@@ -7,7 +7,7 @@ from pathlib import Path
 
 from sim.synth import ROUTERS
 
-from .common import PRESET_CHOICES, hardware_model, lane_arguments, positive_float, scene_argument
+from .common import PRESET_CHOICES, hardware_model, lane_arguments, positive_float, positive_int, scene_argument
 from .verilog import full_argument
 
 NAME, HELP = "synth", "synthesise the scene's core for an ECP5: resources, Fmax, steps/s"
@@ -21,6 +21,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--router", choices=ROUTERS, default="router1",
                         help="nextpnr's router (default router1, nextpnr's own; router2 gets through congested "
                              "designs sooner)")
+    parser.add_argument("--seed", type=positive_int, default=1,
+                        help="nextpnr's placement seed (default 1); Fmax moves by a few MHz from seed to seed")
     parser.add_argument("--preset", default="auto", choices=PRESET_CHOICES,
                         help="number-format preset (default auto: the narrowest whose bit-true run stays within 1e-3 "
                              "of the object size of golden on the scene; narrow's products fit 18x18 multipliers)")
@@ -41,7 +43,8 @@ def run(args) -> int:
     with output_directory(out) as tmp:             # whole or not at all
         r, man = _synthesize(args, bt, tmp, emit, synthesize)
     print(f"wrote {out}/synth.json, report.md, {man['verilog']}, manifest.json")
-    timing = (f"Fmax {r['fmax_mhz']:.1f} MHz (constraint {args.clock_mhz} MHz, {'met' if r['timing_met'] else 'NOT met'})"
+    timing = (f"Fmax {r['fmax_mhz']:.1f} MHz (constraint {args.clock_mhz} MHz, {'met' if r['timing_met'] else 'NOT met'}; "
+              f"seed {args.seed})"
               if args.pnr and r.get("fmax_mhz") is not None else
               "no place and route (--no-pnr): no Fmax" if not args.pnr else "no Fmax: see nextpnr.log")
     print(f"  {r['luts']} LUTs, {r['flip_flops']} FFs, {r['mult18x18']} 18x18 multipliers, {r['block_rams']} block RAMs; "
@@ -55,7 +58,7 @@ def _synthesize(args, bt, out: Path, emit, synthesize):
     man = emit.write(bt, out, lanes=args.lanes, node_lanes=args.node_lanes, core=args.core, ram="ecp5",
                      pair_lanes=args.pair_lanes)
     r = synthesize(out / man["verilog"], man["top"], out, device=args.device, clock_mhz=args.clock_mhz,
-                   progress=True, place_and_route=args.pnr, router=args.router)
+                   seed=args.seed, progress=True, place_and_route=args.pnr, router=args.router)
     r.update(scene=man["scene"], preset=man["preset"], full_featured=args.full, lanes=man["lanes"],
              elements=man["elements"], nodes=man["nodes"], units_present=[u["unit"] for u in man["units_present"]])
     cps = man["cycles_per_step"]["value"]
