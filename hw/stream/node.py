@@ -8,8 +8,10 @@ when the stream has passed the group's last contribution (hw/stream/schedule.py)
   stage 2    x, u (`node`: this lane's node of the group word), the ROM fields (whether the node exists:
              the last group may be short; per force ring "this ring holds contributions to this node",
              which masks the stale words of rings that do not; the kernel's flags and parameters)
-  stage 4    the exact sum of the masked force ring words (`forces`): sums of up to FORCE_CHUNK rings
-             registered at stage 3, their sum at stage 4 (no long adder tree after a block RAM)
+  stage 5    the exact sum of the masked force ring words (`forces`): each masked word registered at
+             stage 3 (only routing and one LUT after a ring's block RAM, which nextpnr may place far from
+             the lane: 3.9 ns of routing measured), sums of up to FORCE_CHUNK of them registered at stage 4,
+             their sum at stage 5
   ...        `node_kernel` through PipeArith: loads by the retirement's own step number (retirement
              runs into the next period, so two steps share the pipeline), floor, friction, mass, gravity
   `stage`    `store`: x, u written into the node store (bank q, word g)
@@ -96,7 +98,7 @@ class NodeLane(wiring.Component):
             arr = np.asarray(raw)
             return rom.add(f"{name}_prm_{qty}", shape, np.where(exists, arr[orig], 0))
 
-        # stages 3, 4: the exact sum of the masked force ring words, per dimension
+        # stages 3 to 5: the masked force ring words registered, then their exact sum, per dimension
         F = []
         off = 0
         words = []
@@ -108,7 +110,12 @@ class NodeLane(wiring.Component):
             parts = []
             for c in range(0, R, FORCE_CHUNK):
                 part = Signal(signed(self.sum_bits), name=f"{name}_force{k}_{c // FORCE_CHUNK}")
-                m.d.sync += part.eq(tree_sum([Mux(mask_bits[r], words[r][k], 0) for r in range(c, min(R, c + FORCE_CHUNK))]))
+                masked = []
+                for r in range(c, min(R, c + FORCE_CHUNK)):
+                    w = Signal(signed(self.force_bits[r]), name=f"{name}_ring{r}_f{k}")
+                    m.d.sync += w.eq(Mux(mask_bits[r], words[r][k], 0))
+                    masked.append(w)
+                m.d.sync += part.eq(tree_sum(masked))
                 parts.append(part)
             f = Signal(signed(self.sum_bits), name=f"{name}_force{k}")
             m.d.sync += f.eq(tree_sum(parts))
