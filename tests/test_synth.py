@@ -196,11 +196,15 @@ class SharedOperand(wiring.Component):
     z: In(signed(18))
     o: Out(72)
 
+    def __init__(self, dsp: str = "sim"):
+        self.dsp = dsp
+        super().__init__()
+
     def elaborate(self, platform):
         from hw.rtl_fixed import registered_product
         m = Module()
-        p, _ = registered_product(m, self.x, self.y, "p")
-        q, _ = registered_product(m, self.x, self.z, "q")
+        p, _ = registered_product(m, self.x, self.y, "p", self.dsp)
+        q, _ = registered_product(m, self.x, self.z, "q", self.dsp)
         m.d.comb += self.o.eq(Cat(p, q))
         return m
 
@@ -214,3 +218,18 @@ def test_operand_registers_of_multipliers_stay_apart(tmp_path):
     r = synthesize(src, "shared", tmp_path / "out", device="ecp5-85k", place_and_route=False)
     assert r["mult18x18"] == 2
     assert r["flip_flops"] == 4 * 18 + 4 * 36, r["flip_flops"]
+
+
+def test_instantiated_multipliers_hold_their_registers(tmp_path):
+    """The "ecp5" variant of the same two products (hw/mult18x18d.py): every register lives in the two
+    MULT18X18D blocks (input, pipeline, output), none in the fabric, and nextpnr is told so (the cells'
+    REG_*_CLK parameters in Yosys' netlist)."""
+    src = tmp_path / "shared.v"
+    src.write_text(verilog.convert(SharedOperand("ecp5"), name="shared"))
+    r = synthesize(src, "shared", tmp_path / "out", device="ecp5-85k", place_and_route=False)
+    assert r["mult18x18"] == 2 and r["flip_flops"] == 0, r
+    cells = json.loads((tmp_path / "out" / "shared.json").read_text())["modules"]["shared"]["cells"].values()
+    dsps = [c["parameters"] for c in cells if c["type"] == "MULT18X18D"]
+    assert len(dsps) == 2
+    for prm in dsps:
+        assert [prm[f"REG_{r}_CLK"].strip() for r in ("INPUTA", "INPUTB", "PIPELINE", "OUTPUT")] == ["CLK0"] * 4, prm
