@@ -288,7 +288,9 @@ def _rsqrt_denormalise(p: _Pipe, y, rs_, ls_, pos_, md):
     useleft = p.reg(ls_ != 0, name="dn_useleft")
     posf = p.reg(pos_, name="dn_pos")
     res_r = (rr + 1).shift_right(1)
-    ovf = Mux(useleft, lovf, res_r > out.max_raw)
+    # res_r > max  <=>  rr + 1 >= 2 max + 2  <=>  rr > 2 max: compared on rr beside the rounding adder, not
+    # after it (nextpnr: the two carry chains in series were the critical path at 111.7 MHz)
+    ovf = Mux(useleft, lovf, rr > 2 * out.max_raw)
     res = Mux(useleft, lv, res_r)
     sat = ~posf | ovf
     value = p.reg(Mux(sat, out.max_raw, res), _raw_shape(out), name="out_value")
