@@ -8,8 +8,8 @@
            retires; `retire` (with the step number: STEP, which counts retired steps)
 
 Each process keeps a window base register, k Gs mod Wg for its step k, added to its group index for
-the window slot. Its counters run LOOKAHEAD cycles ahead of its events, so that the phase ROM (a
-BlockRam, read latency 2) answers in time. The run ends `drain` cycles after the last step's last
+the window slot. Its counters run LOOKAHEAD = 3 cycles ahead of its events, so that the phase ROM (a
+BlockRam, read latency 2) answers in time and its bit is registered before the event. The run ends `drain` cycles after the last step's last
 retirement (its results written and its saturations counted): busy falls after run_cycles(n) cycles.
 STEP counts every retired step; the RUN register (steps left) counts down with it. CYCLES counts the
 cycles spent busy since reset. While idle, the host may write STEP (`step_we`) and start a run.
@@ -20,7 +20,7 @@ from amaranth.hdl import Module, Signal
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from .bram import BlockRam
+from .bram import LATENCY, BlockRam
 from .element import IssueSignature
 from .node import RetireSignature
 from .nodeword import bits_for, delay
@@ -75,15 +75,18 @@ class Control(wiring.Component):
                     m.d.sync += [ph_e.eq(ph_e + 1), ph_last.eq(ph_e == T - 2)]
             with m.If(~busy):
                 m.d.sync += act_e.eq(0)
-            act, ph = delay(m, act_e, LOOKAHEAD, f"{name}_act"), delay(m, ph_e, LOOKAHEAD, f"{name}_ph")
+            act_rom = delay(m, act_e, LATENCY, f"{name}_act")             # beside the phase ROM's word
+            act = delay(m, act_rom, LOOKAHEAD - LATENCY, f"{name}_act_ev")
+            ph = delay(m, ph_e, LOOKAHEAD, f"{name}_ph")
             if rom_bits is None:
                 en = act
             else:
                 rom = BlockRam(1, T, init=[int(b) for b in rom_bits], writable=False, ram=self.ram)
                 m.submodules[f"{name}_phases"] = rom
                 m.d.comb += rom.r_addr.eq(ph_e)
-                en = Signal(name=f"{name}_en")
-                m.d.comb += en.eq(act & rom.r_data[0])
+                # the event bit registered beside its consumers (nextpnr had the ROM, the last-group test and
+                # the host port's step counters in one cycle across the chip: 11.9 ns)
+                en = delay(m, act_rom & rom.r_data[0], LOOKAHEAD - LATENCY, f"{name}_en")
             # the step's window base: k Gs mod Wg
             base = Signal(self.wbits, name=f"{name}_base")
             with m.If(~act):

@@ -53,7 +53,8 @@ from .order import StreamOrder
 MEMORY = 2            # block RAM: address presented in cycle t, data (from its output register) in t + 2
 RMW = 3               # a force ring word read at stage s is written back at stage s + RMW (its sum
                       # registered before the block RAM's write port: hw/stream/forcering.py)
-LOOKAHEAD = 2         # the phase ROMs are read this many cycles ahead of their process
+LOOKAHEAD = 3         # the phase ROMs are read this many cycles ahead of their process (read latency 2,
+                      # then the event bit registered)
 SAT_TAIL = 5          # from a node's last result stage to the core's saturation count register (lane
                       # register 2, SaturationCounter 3)
 MAX_WINDOW_GROUPS = 512      # the largest window: one 512 x 36 DP16KD column per 36 bits of a group
