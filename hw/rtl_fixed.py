@@ -321,8 +321,8 @@ def _ecp5_product(m: Module, a, b, name: str) -> tuple[Value, int] | None:
         """x * y (operands of at most DSP_BITS bits in their product's arithmetic) from a MULT18X18D."""
         xy = (x * y).shape()
         x_, y_ = (_signed(v) if xy.signed else v for v in (x, y))
-        return mult18x18d(m, x_, y_, xy.signed, pipeline, nm)[:xy.width].as_signed() if xy.signed else \
-            mult18x18d(m, x_, y_, False, pipeline, nm)[:xy.width]
+        p = mult18x18d(m, x_, y_, xy.signed, pipeline, nm)[:xy.width]
+        return p.as_signed() if xy.signed else p
 
     def shifted(p):
         return p.shift_left(tz) if tz else p
