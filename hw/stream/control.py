@@ -9,7 +9,8 @@
 
 Each process keeps a window base register, k Gs mod Wg for its step k, added to its group index for
 the window slot. Its counters run LOOKAHEAD = 3 cycles ahead of its events, so that the phase ROM (a
-BlockRam, read latency 2) answers in time and its bit is registered before the event. The run ends `drain` cycles after the last step's last
+BlockRam, read latency 2) answers in time and its bit is registered before the event. The run ends
+`drain` cycles after the last step's last
 retirement (its results written and its saturations counted): busy falls after run_cycles(n) cycles.
 STEP counts every retired step; the RUN register (steps left) counts down with it. CYCLES counts the
 cycles spent busy since reset. While idle, the host may write STEP (`step_we`) and start a run.
