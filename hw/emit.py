@@ -89,16 +89,17 @@ def full_featured(system):
 
 
 def build(bt: BitTrue, lanes: int = 1, node_lanes: int = 1, core: str = "phased", ram: str = "sim",
-          pair_lanes: int | None = None):
+          pair_lanes: int | None = None, dp16kd_budget: int | None = None):
     """(Core, elaborated Verilog text, manifest dict) for a bit-true model's scene and formats. `core`:
     "phased" (hw/core.py), "stream" (hw/stream/) or "auto" (stream unless collisions); `ram`: the
     streaming core's block RAMs and multipliers, "sim" (inferred) or "ecp5" (DP16KD and MULT18X18D
     instances, `primitive_models`); `pair_lanes`: the
-    streaming core's topology-pair lanes (default: lanes)."""
+    streaming core's topology-pair lanes (default: lanes); `dp16kd_budget`: the device's block RAMs, which
+    the streaming core fits by moving shallow copies into LUT RAM (hw/stream/core.py)."""
     from amaranth.back import verilog
     from .stream import build_core, resolve_core
     kind = resolve_core(bt.params, core)
-    c = build_core(bt, lanes, node_lanes, kind, ram, pair_lanes)
+    c = build_core(bt, lanes, node_lanes, kind, ram, pair_lanes, dp16kd_budget)
     text = verilog.convert(c, name=TOP, emit_src=False)
     if kind == "stream":
         from .stream.manifest import manifest as stream_manifest
@@ -144,10 +145,10 @@ def manifest(bt: BitTrue, core: Core) -> dict:
 
 
 def write(bt: BitTrue, out_dir, lanes: int = 1, node_lanes: int = 1, core: str = "phased", ram: str = "sim",
-          pair_lanes: int | None = None) -> dict:
+          pair_lanes: int | None = None, dp16kd_budget: int | None = None) -> dict:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    core, text, man = build(bt, lanes, node_lanes, core, ram, pair_lanes)
+    core, text, man = build(bt, lanes, node_lanes, core, ram, pair_lanes, dp16kd_budget)
     (out / f"{TOP}.v").write_text(text)
     man["verilog"] = f"{TOP}.v"
     man["verilog_modules"] = sorted(set(line.split()[1].split("(")[0] for line in text.splitlines()

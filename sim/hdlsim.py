@@ -35,10 +35,11 @@ def build_root() -> Path:
 
 
 def emit_core(bt: BitTrue, lanes=1, node_lanes=1, root: Path | None = None, core: str = "phased",
-              ram: str = "sim", pair_lanes: int | None = None):
+              ram: str = "sim", pair_lanes: int | None = None, dp16kd_budget: int | None = None):
     """Emit the core's Verilog into a directory named after its hash; returns (dir, manifest, driver).
-    A core with ECP5 primitives (ram "ecp5") gets their models beside it (simulators need them)."""
-    core, text, man = emit.build(bt, lanes, node_lanes, core, ram, pair_lanes)
+    A core with ECP5 primitives (ram "ecp5") gets their models beside it (simulators need them);
+    `dp16kd_budget`: the streaming core's block RAM fit (copies in LUT RAM, hw/stream/core.py)."""
+    core, text, man = emit.build(bt, lanes, node_lanes, core, ram, pair_lanes, dp16kd_budget)
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
     d = (root or build_root()) / f"{file_stem(bt.system.name)}-{digest}"
     d.mkdir(parents=True, exist_ok=True)

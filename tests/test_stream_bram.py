@@ -75,6 +75,23 @@ def test_block_ram_equals_reference(ram, width, depth, segments, with_init):
     assert checked > 300
 
 
+@pytest.mark.parametrize("ram", ["sim", "ecp5"])
+@pytest.mark.parametrize("width,depth,segments", [(60, 32, 2), (44, 128, 2), (27, 40, 1)])
+def test_distributed_ram_equals_reference(ram, width, depth, segments):
+    """LUT RAM (`distributed=True`, no DP16KD): the same reads, latency and segment enables."""
+    rng = np.random.default_rng(width + depth)
+    dut = BlockRam(width, depth, segments=segments, ram=ram, distributed=True)
+    assert dut.blocks() == 0
+    vals = stimulus(rng, width, depth, segments, 300, collide_every=5)
+    run = run_amaranth if ram == "sim" else (lambda *a: run_verilog(*a, tag=f"lutram-{width}-{depth}-{segments}"))
+    got = run(dut, INPUTS, vals, ["r_data"])[:, 0]
+    ref = reference(width, depth, segments, [], vals)
+    checked = [t for t in range(len(vals) - 1) if ref[t] >= 0]
+    assert len(checked) > 200
+    for t in checked:
+        assert got[t] == ref[t], f"{ram} {width}x{depth}: read after edge {t}: {got[t]:#x} != {ref[t]:#x}"
+
+
 def test_block_plan_counts():
     assert plan_blocks(72, 128) == (36, 512, 1, 2)            # a 2D narrow node: two 36-bit columns
     assert plan_blocks(144, 128) == (36, 512, 1, 4)
@@ -111,3 +128,5 @@ def test_two_port_plan_counts():
     assert BlockRam(35, 1024, writable=False, read_ports=2).blocks() == 2
     with pytest.raises(ValueError):
         BlockRam(8, 16, read_ports=2)                                  # a writable RAM has one read port
+    with pytest.raises(ValueError, match="distributed"):
+        BlockRam(8, 16, writable=False, distributed=True)              # LUT RAM: writable memories only

@@ -43,13 +43,13 @@ def run_cycles(man, n):
     return s["prologue_A0"] + (n - 1) * s["period_T"] + s["drain"] + 1
 
 
-def check(bt, simulator, start, frames, reset_after=0, lanes=1, node_lanes=1, ram="sim"):
+def check(bt, simulator, start, frames, reset_after=0, lanes=1, node_lanes=1, ram="sim", dp16kd_budget=None):
     """Run the bit-true model to `start`, hand its state to the simulated Verilog, compare each frame."""
     st = bt.initial_state()
     for _ in range(start):
         bt.step(st)
     bt.sat.clear()
-    core_dir, man, drv = emit_core(bt, lanes, node_lanes, core="stream", ram=ram)
+    core_dir, man, drv = emit_core(bt, lanes, node_lanes, core="stream", ram=ram, dp16kd_budget=dp16kd_budget)
     assert man["core"] == "stream" and man["ram"] == ram
     out = run_job(simulator, core_dir, drv, drv.load_words(st.X, st.U, st.A, st.step), frames,
                   reset_after=reset_after, timeout_s=1800)
@@ -96,6 +96,17 @@ def test_ecp5_primitives_variant_with_damper_tables_on_verilator():
     assert len(re.findall(r"^\s*MULT18X18D\b", text, re.M)) > 0
     assert not re.search(r"[\w)\]]\s\*\s[\w($\\]", text), "a product left to Yosys"   # `$signed(a) * $signed(b)`
     check(bt, "verilator", 600, [1, 3, 2], lanes=2, node_lanes=2, ram="ecp5")
+
+
+def test_copies_moved_into_lut_ram_on_icarus(tmp_path):
+    """A block RAM budget of 0 moves every force ring's node copy and every window copy into LUT RAM
+    (hw/stream/core.py): the DP16KD variant with those memories distributed, bit for bit on Icarus."""
+    bt = bittrue("press-2d-rheological", "narrow")
+    man = check(bt, "icarus", 40, [1, 2], lanes=2, node_lanes=2, ram="ecp5", dp16kd_budget=0)
+    moved = man["block_ram_fit"]["lut_ram_memories"]
+    assert sum(n.startswith("window_copy") for n in moved) == 2 * 2 + 3 * 2 + 1   # 2 P + (D + 1) Pp reads, Q lanes'
+    assert sum(n.endswith("_node_copy") for n in moved) == 2 * 2 + 3 * 2        # a ring per lane role
+    assert all(m["dp16kd"] == 0 for m in man["memories"] if m["name"] in moved)
 
 
 @pytest.mark.parametrize("seed,P,Q", [(1, 1, 2), (2, 2, 1), (3, 3, 2)])

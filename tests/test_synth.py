@@ -233,3 +233,29 @@ def test_instantiated_multipliers_hold_their_registers(tmp_path):
     assert len(dsps) == 2
     for prm in dsps:
         assert [prm[f"REG_{r}_CLK"].strip() for r in ("INPUTA", "INPUTB", "PIPELINE", "OUTPUT")] == ["CLK0"] * 4, prm
+
+
+class Distributed(wiring.Component):
+    """One distributed BlockRam, 32 x 84 in two segments (a force ring's node copy under narrow)."""
+
+    def __init__(self, ram):
+        self.ram = ram
+        super().__init__({"w_addr": In(5), "w_data": In(84), "w_en": In(2), "r_addr": In(5), "r_data": Out(84)})
+
+    def elaborate(self, platform):
+        from hw.stream.bram import BlockRam
+        m = Module()
+        m.submodules.mem = mem = BlockRam(84, 32, segments=2, ram=self.ram, distributed=True)
+        wiring.connect(m, wiring.flipped(self), mem)
+        return m
+
+
+def test_distributed_block_ram_maps_to_lut_ram(tmp_path):
+    """Yosys puts a `distributed` BlockRam in TRELLIS_DPR16X4 (per 42-bit segment 11 columns of 4 bits, x 2
+    rows of 16 words),
+    no DP16KD, and keeps its two read registers (2 x 84 flip-flops)."""
+    src = tmp_path / "lut.v"
+    src.write_text(verilog.convert(Distributed("ecp5"), name="lut"))
+    r = synthesize(src, "lut", tmp_path / "out", device="ecp5-85k", place_and_route=False)
+    assert r["block_rams"] == 0 and r["distributed_rams"] == 2 * 11 * 2, r
+    assert r["flip_flops"] == 2 * 84, r

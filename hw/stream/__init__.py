@@ -75,9 +75,10 @@ def cycles_per_step(bt, lanes: int = 1, node_lanes: int = 1, core: str = "auto",
 
 
 def build_core(bt, lanes: int = 1, node_lanes: int = 1, core: str = "phased", ram: str = "sim",
-               pair_lanes: int | None = None):
+               pair_lanes: int | None = None, dp16kd_budget: int | None = None):
     """The core (an Amaranth component with `cfg`, `host`, `cycles_per_step`) for a bit-true model;
-    pair_lanes (the streaming core's topology-pair lanes) defaults to lanes."""
+    pair_lanes (the streaming core's topology-pair lanes) defaults to lanes; dp16kd_budget: the streaming
+    core's block RAM fit (hw/stream/core.py; the phased core has none)."""
     core = resolve_core(bt.params, core)
     check_pair_lanes(core, pair_lanes)
     if core == "phased":
@@ -85,4 +86,5 @@ def build_core(bt, lanes: int = 1, node_lanes: int = 1, core: str = "phased", ra
         return Core(CoreConfig.of(bt, lanes, node_lanes))
     from .config import StreamConfig
     from .core import StreamCore
-    return StreamCore(StreamConfig.of(bt, lanes, node_lanes, ram=ram, pair_lanes=pair_lanes))
+    return StreamCore(StreamConfig.of(bt, lanes, node_lanes, ram=ram, pair_lanes=pair_lanes,
+                                      dp16kd_budget=dp16kd_budget))

@@ -24,6 +24,13 @@ two readers share one copy, e.g. two lanes' function-unit tables. The "ecp5" var
 DP16KD in true dual-port mode, both ports reading with their output registers (REGMODE_A = REGMODE_B =
 "OUTREG"); that mode has no 36-bit width, so blocks are 1024 x 18 or 2048 x 9.
 
+A writable memory may instead be `distributed` (LUT RAM): an Amaranth `Memory` marked
+`ram_style = "distributed"`, which Yosys maps to TRELLIS_DPR16X4 (16 x 4 bits each, asynchronous read)
+and a read register, plus the output register: the same ports and latency in either variant. It costs
+no DP16KD; a shallow, wide memory (a window copy, a force ring's node copy: 128 words in blocks 512
+deep) spends 3/4 of its blocks' bits on nothing, so the core moves such memories into LUT RAM when the
+block RAM would not fit otherwise (hw/stream/core.py, `fit_block_ram`).
+
 `blocks()` states the DP16KD count of the "ecp5" variant for either variant (the manifest's budget).
 """
 from __future__ import annotations
@@ -35,7 +42,7 @@ from amaranth.lib import wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
-__all__ = ["BlockRam", "LATENCY", "RAM_VARIANTS", "DP16KD_MODEL", "plan_blocks", "ram_record"]
+__all__ = ["BlockRam", "LATENCY", "RAM_VARIANTS", "DP16KD_MODEL", "plan_blocks", "ram_record", "lut_rams"]
 
 LATENCY = 2
 RAM_VARIANTS = ("sim", "ecp5")
@@ -71,8 +78,18 @@ def plan_blocks(width: int, depth: int, segments: int = 1, read_ports: int = 1):
     return w, d, rows, cols
 
 
-def ram_record(name: str, width: int, depth: int, segments: int = 1, read_ports: int = 1) -> dict:
-    """A memory inventory entry: name, depth, width and the DP16KD blocks of the "ecp5" variant."""
+def lut_rams(width: int, depth: int, segments: int = 1) -> int:
+    """TRELLIS_DPR16X4 (16 words x 4 bits) of a distributed memory: each segment has its own columns."""
+    return segments * -(-(width // segments) // 4) * -(-depth // 16)
+
+
+def ram_record(name: str, width: int, depth: int, segments: int = 1, read_ports: int = 1,
+               distributed: bool = False) -> dict:
+    """A memory inventory entry: name, depth, width, the DP16KD blocks of the "ecp5" variant and, for a
+    distributed memory (no blocks), its TRELLIS_DPR16X4 count."""
+    if distributed:
+        return {"name": name, "depth": depth, "width": width, "dp16kd": 0,
+                "dpr16x4": lut_rams(width, depth, segments)}
     _, _, rows, cols = plan_blocks(width, depth, segments, read_ports)
     return {"name": name, "depth": depth, "width": width, "dp16kd": rows * cols}
 
@@ -93,6 +110,8 @@ class BlockRam(wiring.Component):
         The variant (module docstring).
     read_ports : 1 or 2
         2: a ROM with a second read port (`r2_addr`, `r2_data`).
+    distributed : bool
+        LUT RAM instead of block RAM (a writable memory with one read port; module docstring).
 
     Members
     -------
@@ -104,7 +123,7 @@ class BlockRam(wiring.Component):
     """
 
     def __init__(self, width: int, depth: int, *, init=None, segments: int = 1, writable: bool = True,
-                 ram: str = "sim", read_ports: int = 1):
+                 ram: str = "sim", read_ports: int = 1, distributed: bool = False):
         if ram not in RAM_VARIANTS:
             raise ValueError(f"unknown block RAM variant {ram!r} (known: {', '.join(RAM_VARIANTS)})")
         if width < 1 or depth < 1:
@@ -113,8 +132,10 @@ class BlockRam(wiring.Component):
             raise ValueError(f"width {width} does not split into {segments} segments")
         if read_ports not in (1, 2) or (read_ports == 2 and writable):
             raise ValueError(f"{read_ports} read ports: a BlockRam has 1, a ROM 1 or 2 (its port A reads then)")
+        if distributed and (not writable or read_ports != 1):
+            raise ValueError("a distributed (LUT RAM) BlockRam is a writable memory with one read port")
         self.width, self.depth, self.segments, self.writable, self.ram = width, depth, segments, writable, ram
-        self.read_ports = read_ports
+        self.read_ports, self.distributed = read_ports, distributed
         self.init = [int(v) & ((1 << width) - 1) for v in (init or [])]
         if len(self.init) > depth:
             raise ValueError(f"{len(self.init)} initial words for a depth of {depth}")
@@ -131,16 +152,19 @@ class BlockRam(wiring.Component):
 
     def blocks(self) -> int:
         """DP16KD blocks of the "ecp5" variant."""
+        if self.distributed:
+            return 0
         _, _, rows, cols = plan_blocks(self.width, self.depth, self.segments, self.read_ports)
         return rows * cols
 
     def elaborate(self, platform):
-        return self._sim() if self.ram == "sim" else self._ecp5()
+        return self._sim() if self.ram == "sim" or self.distributed else self._ecp5()
 
-    # ---- Amaranth Memory and an output register
+    # ---- Amaranth Memory and an output register (LUT RAM when distributed)
     def _sim(self):
         m = Module()
-        mem = Memory(shape=unsigned(self.width), depth=self.depth, init=self.init)
+        attrs = {"ram_style": "distributed"} if self.distributed else None
+        mem = Memory(shape=unsigned(self.width), depth=self.depth, init=self.init, attrs=attrs)
         m.submodules.mem = mem
         if self.writable:
             seg = self.width // self.segments

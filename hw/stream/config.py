@@ -46,7 +46,8 @@ class StreamConfig:
     """The static description of one streaming core (see the module docstring)."""
 
     def __init__(self, params, formats, units, lanes: int = 1, node_lanes: int = 1, init: dict | None = None,
-                 ram: str = "sim", max_window_groups: int | None = None, pair_lanes: int | None = None):
+                 ram: str = "sim", max_window_groups: int | None = None, pair_lanes: int | None = None,
+                 dp16kd_budget: int | None = None):
         pair_lanes = lanes if pair_lanes is None else pair_lanes
         for name, v in (("lanes", lanes), ("node_lanes", node_lanes), ("pair_lanes", pair_lanes)):
             if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 64:
@@ -59,6 +60,11 @@ class StreamConfig:
         # ram: "sim" (Amaranth memories and products, for every simulator) or "ecp5" (`rheo synth`: the
         # ECP5's DP16KD block RAMs, hw/stream/bram.py, and MULT18X18D multipliers, hw/mult18x18d.py,
         # instantiated with their registers; simulators need their models beside the core)
+        if dp16kd_budget is not None and (isinstance(dp16kd_budget, bool) or not isinstance(dp16kd_budget, int)
+                                          or dp16kd_budget < 0):
+            raise ValueError(f"dp16kd_budget must be an integer >= 0 or None, got {dp16kd_budget!r}")
+        self.dp16kd_budget = dp16kd_budget    # the device's DP16KD: shallow copies move into LUT RAM to fit
+                                              # (StreamCore; None: every memory a block RAM)
         self.pair_lanes = pair_lanes          # Pp: topology-pair lanes (P unless asked; scenes whose pairs
                                               # outnumber their elements run faster with more)
         self.init = init or {}

@@ -22,8 +22,14 @@ A scene with a [probe] adds `ProbePort` (hw/stream/probeport.py): the top's `pro
 samples and `force_out` stream of probe forces; each sample runs k steps, `probe_latency` cycles from
 sample to force.
 
+Block RAM fit (`cfg.dp16kd_budget`, the device's DP16KD; None: no fit): when the core's blocks
+(`block_rams()`) exceed it, the shallow copies (the force rings' node copies, then the window's copies,
+Wg words each in blocks 512 deep) move into LUT RAM one by one, the fewest LUT RAMs per block saved
+first, until the rest fits (`lut_memories`). Same ports and latencies: the schedule and the bits do not
+change.
+
 Everything is known at construction: `cycles_per_step`, `schedule`, `sat_quantities`, `memories()`,
-`probe_latency`.
+`block_rams()`, `lut_memories`, `probe_latency`.
 """
 from __future__ import annotations
 
@@ -31,7 +37,7 @@ from amaranth.hdl import Cat, Module, Mux
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
-from .bram import LATENCY, ram_record
+from .bram import LATENCY, lut_rams, plan_blocks, ram_record
 from .config import StreamConfig
 from .control import Control
 from .element import ElementLane
@@ -68,6 +74,7 @@ class StreamCore(wiring.Component):
         self.rings = [(RunSum if ring.runs else ForceRing)(D, fe, ring.acc_bits, Q, sch.window_groups, ram)
                       for ring in cfg.rings]
         self.nodes = [NodeLane(cfg, q) for q in range(Q)]
+        self.lut_memories = self._fit_block_ram(cfg.dp16kd_budget)
         self.probe = ProbePort(cfg) if cfg.params.probe is not None else None
         self.probe_latency = self.probe.latency if self.probe is not None else None
         lanes = self.elements + self.pairs + self.nodes + ([self.probe] if self.probe is not None else [])
@@ -106,6 +113,37 @@ class StreamCore(wiring.Component):
         for lane in self.elements + self.pairs:
             out += lane.rams()
         return out + self._roms()
+
+    def block_rams(self) -> int:
+        """DP16KD of the "ecp5" variant: the BlockRams of `memories()` and the lanes' own function-unit
+        ROMs (those a lane does not share, hw/stream/tables.py), which Yosys infers."""
+        from .tables import shares
+        own = [mem for lane in self.elements + self.pairs for mem in lane.unit_memories()
+               if lane.tables is None or not shares(mem["width"], mem["depth"])]
+        units = sum(rows * cols for *_, rows, cols in (plan_blocks(mem["width"], mem["depth"]) for mem in own))
+        return sum(mem["dp16kd"] for mem in self.memories()) + units
+
+    def _fit_block_ram(self, budget: int | None) -> list[str]:
+        """Move shallow copies into LUT RAM until block_rams() <= budget (module docstring); their names."""
+        if budget is None:
+            return []
+        names = [info.name for info in self.cfg.rings]
+        candidates = []                    # (its record, a LUT RAM's cost, mark it distributed)
+        for ring, name in zip(self.rings, names):
+            rec = ring.rams(name)[-1]
+            cost = lut_rams(rec["width"], rec["depth"], self.cfg.node_lanes)     # a segment per node lane
+            candidates.append((rec, cost, lambda ring=ring: setattr(ring, "lut_copy", True)))
+        for k, rec in enumerate(self.window.rams()):
+            candidates.append((rec, lut_rams(rec["width"], rec["depth"]), lambda k=k: self.window.lut_copies.add(k)))
+        candidates.sort(key=lambda c: c[1] / c[0]["dp16kd"])     # fewest DPR16X4 per block saved first
+        moved, excess = [], self.block_rams() - budget
+        for rec, _, mark in candidates:
+            if excess <= 0:
+                break
+            mark()
+            moved.append(rec["name"])
+            excess -= rec["dp16kd"]
+        return moved
 
     def _roms(self) -> list[dict]:
         """The node lanes' and the control's ROMs (node lanes: widths from the dry run's per-item fields;

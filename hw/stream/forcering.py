@@ -25,7 +25,9 @@ before this write (hw/stream/schedule.py). II = 1, no stalls; a sum is in the no
 RMW + 1 cycles after its contribution was presented.
 
 `node_addr` (a slot) reads the node copy: `node_data`, LATENCY = 2 cycles later, holds the Q nodes' sums
-of the group in that slot (segment q: node q of the group, D words of `acc_bits`).
+of the group in that slot (segment q: node q of the group, D words of `acc_bits`). With `lut_copy` set
+the node copy is LUT RAM (`BlockRam(distributed=True)`, the same latency): it is Wg words deep, a
+quarter of a block's depth or less.
 """
 from __future__ import annotations
 
@@ -52,6 +54,7 @@ class ForceRing(wiring.Component):
             raise ValueError(f"accumulator of {acc_bits} bits narrower than its {fe_bits}-bit contributions")
         self.D, self.fe_bits, self.acc_bits, self.Q, self.Wg, self.ram = dim, fe_bits, acc_bits, node_lanes, window_groups, ram
         self.rmw, self.latency = RMW, LATENCY
+        self.lut_copy = False                  # the node copy in LUT RAM (StreamCore's block RAM fit)
         self.qbits, self.wbits = bits_for(node_lanes), bits_for(window_groups)
         super().__init__({
             "add": In(ContributionSignature(dim, fe_bits, node_lanes, window_groups)),
@@ -66,11 +69,13 @@ class ForceRing(wiring.Component):
 
     def rams(self, name: str) -> list[dict]:
         (w1, d1, s1), (w2, d2, s2) = self._shapes()
-        return [ram_record(f"ring_{name}", w1, d1, s1), ram_record(f"ring_{name}_node_copy", w2, d2, s2)]
+        return [ram_record(f"ring_{name}", w1, d1, s1),
+                ram_record(f"ring_{name}_node_copy", w2, d2, s2, distributed=self.lut_copy)]
 
     def memories(self):
         """(read-modify-write ring, node lanes' copy)."""
-        return tuple(BlockRam(w, d, segments=s, ram=self.ram) for w, d, s in self._shapes())
+        return tuple(BlockRam(w, d, segments=s, ram=self.ram, distributed=lut)
+                     for (w, d, s), lut in zip(self._shapes(), (False, self.lut_copy)))
 
     def elaborate(self, platform):
         m = Module()
@@ -129,6 +134,7 @@ class RunSum(wiring.Component):
                  ram: str = "sim"):
         self.D, self.fe_bits, self.acc_bits, self.Q, self.Wg, self.ram = dim, fe_bits, acc_bits, node_lanes, window_groups, ram
         self.rmw, self.latency = RMW, LATENCY
+        self.lut_copy = False                  # as ForceRing's
         super().__init__({
             "add": In(ContributionSignature(dim, fe_bits, node_lanes, window_groups)),
             "node_addr": In(bits_for(window_groups)),
@@ -139,13 +145,13 @@ class RunSum(wiring.Component):
         return self.Q * self.D * self.acc_bits, self.Wg, self.Q
 
     def rams(self, name: str) -> list[dict]:
-        return [ram_record(f"runsum_{name}_node_copy", *self._shape())]
+        return [ram_record(f"runsum_{name}_node_copy", *self._shape(), distributed=self.lut_copy)]
 
     def elaborate(self, platform):
         m = Module()
         D, A, F = self.D, self.acc_bits, self.fe_bits
         w, d, s = self._shape()
-        copy = BlockRam(w, d, segments=s, ram=self.ram)
+        copy = BlockRam(w, d, segments=s, ram=self.ram, distributed=self.lut_copy)
         m.submodules.copy = copy
         add = self.add
         sums = []

@@ -55,6 +55,9 @@ def manifest(bt, core, specialisation, top: str) -> dict:
         "memories": mems + units,
         "memory_bits": int(sum(m["depth"] * m["width"] for m in mems + units)),
         "block_rams_dp16kd": int(sum(m["dp16kd"] for m in mems)),
+        "block_ram_fit": {"dp16kd_budget": cfg.dp16kd_budget, "dp16kd_with_unit_roms": core.block_rams(),
+                          "lut_ram_memories": core.lut_memories,
+                          "dpr16x4": int(sum(m.get("dpr16x4", 0) for m in mems))},
         "cycles_per_step": {
             "formula": "T = max(ceil(E/P), ceil(pairs/Pp), the schedule's read-after-write bounds); a run of n steps "
                        "takes A0 + (n - 1) T + drain + 1 cycles",

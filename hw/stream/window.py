@@ -9,6 +9,7 @@ between a window copy and the multiplexer, which fed an element lane's first sub
 cycle); a group read port (`groups`: the node lanes, which retire a whole group) gets the group word
 LATENCY = 2 cycles later. The schedule
 guarantees that every read sees the group its slot holds for that read's step (hw/stream/schedule.py).
+The copies listed in `lut_copies` are LUT RAM (`BlockRam(distributed=True)`, the same latency).
 """
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ class NodeWindow(wiring.Component):
         self.word, self.Q, self.Wg, self.ram = word, node_lanes, window_groups, ram
         self.latency, self.node_latency = LATENCY, NODE_READ_LATENCY
         self.n_reads, self.n_groups = node_reads, group_reads
+        self.lut_copies: set[int] = set()      # copies in LUT RAM (StreamCore's block RAM fit)
         wb, gw = bits_for(window_groups), node_lanes * word.bits
         members = {"fill_addr": In(wb), "fill_data": In(gw), "fill_en": In(1)}
         if node_reads:
@@ -46,17 +48,18 @@ class NodeWindow(wiring.Component):
         return self.n_reads + self.n_groups
 
     def rams(self) -> list[dict]:
-        return [ram_record(f"window_copy{k}", self.Q * self.word.bits, self.Wg) for k in range(self.copies())]
+        return [ram_record(f"window_copy{k}", self.Q * self.word.bits, self.Wg, distributed=k in self.lut_copies)
+                for k in range(self.copies())]
 
-    def copy(self):
-        return BlockRam(self.Q * self.word.bits, self.Wg, ram=self.ram)
+    def copy(self, k: int):
+        return BlockRam(self.Q * self.word.bits, self.Wg, ram=self.ram, distributed=k in self.lut_copies)
 
     def elaborate(self, platform):
         m = Module()
         ports = [(p, True) for p in (self.reads if self.n_reads else [])]
         ports += [(p, False) for p in (self.groups if self.n_groups else [])]
         for k, (port, single) in enumerate(ports):
-            ring = self.copy()
+            ring = self.copy(k)
             m.submodules[f"copy{k}"] = ring
             m.d.comb += [ring.w_addr.eq(self.fill_addr), ring.w_data.eq(self.fill_data),
                          ring.w_en.eq(self.fill_en), ring.r_addr.eq(port.addr)]

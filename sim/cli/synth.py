@@ -55,8 +55,9 @@ def run(args) -> int:
 
 
 def _synthesize(args, bt, out: Path, emit, synthesize):
+    from sim.synth import block_ram_capacity
     man = emit.write(bt, out, lanes=args.lanes, node_lanes=args.node_lanes, core=args.core, ram="ecp5",
-                     pair_lanes=args.pair_lanes)
+                     pair_lanes=args.pair_lanes, dp16kd_budget=block_ram_capacity(args.device))
     r = synthesize(out / man["verilog"], man["top"], out, device=args.device, clock_mhz=args.clock_mhz,
                    seed=args.seed, progress=True, place_and_route=args.pnr, router=args.router)
     r.update(scene=man["scene"], preset=man["preset"], full_featured=args.full, lanes=man["lanes"],
