@@ -180,7 +180,7 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
     from hw.datapath import state_difference
     from hw.stream import check_pair_lanes, resolve_core
     from .hdlsim import emit_core, run_job
-    from .synth import synthesize_cached
+    from .synth import block_ram_capacity, synthesize_cached
     from .backends import narrowest_preset, preset_error
     say = log or (lambda m: None)
     check_pair_lanes(resolve_core(system, core), pair_lanes)   # a scene no core takes: refused before any run
@@ -232,7 +232,9 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
         say(f"place and route for {device} (Yosys + nextpnr, once per Verilog; tens of minutes for large cores)")
         synth_dir = core_dir
         if kind == "stream":                          # synthesis takes the DP16KD instances
-            synth_dir, _, _ = emit_core(bt, lanes, node_lanes, core=kind, ram="ecp5", pair_lanes=pair_lanes)
+            # fit the device's block RAM (LUT RAM copies, hw/stream/core.py)
+            synth_dir, _, _ = emit_core(bt, lanes, node_lanes, core=kind, ram="ecp5", pair_lanes=pair_lanes,
+                                        dp16kd_budget=block_ram_capacity(device))
         res, synth_dir = synthesize_cached(synth_dir / f"{man['top']}.v", man["top"], device=device,
                                            progress=log is not None)
         fmax_mhz, source = res["fmax_mhz"], f"measured: nextpnr-ecp5 on {device} ({synth_dir})"
