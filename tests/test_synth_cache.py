@@ -69,3 +69,23 @@ def test_rheo_synth_hands_its_placement_seed_to_nextpnr(tmp_path):
     for argv, seed in ((["synth", "creep-1d", "--out", "d", "--seed", "5"], 5), (["synth", "creep-1d", "--out", "d"], 1)):
         r, _ = _synthesize(parser.parse_args(argv), None, tmp_path, FakeEmit, fake_synthesize)
         assert calls[-1] == seed and r["seed"] == seed
+
+
+def test_rheo_synth_fits_the_devices_block_ram(tmp_path):
+    """`rheo synth` hands the streaming core its device's DP16KD (208 on an LFE5U-85F, 108 on a 45F) as the
+    block RAM budget the core fits with LUT RAM copies (hw/stream/core.py)."""
+    from sim.cli import build_parser
+    from sim.cli.synth import _synthesize
+    budgets = []
+
+    class FakeEmit:
+        @staticmethod
+        def write(bt, out, **kw):
+            budgets.append(kw["dp16kd_budget"])
+            return {"verilog": "core.v", "top": "top", "scene": "s", "preset": "narrow", "lanes": 1,
+                    "elements": 1, "nodes": 2, "units_present": [], "cycles_per_step": {"value": 10}}
+
+    parser = build_parser()
+    for argv in (["synth", "creep-1d", "--out", "d"], ["synth", "creep-1d", "--out", "d", "--device", "ecp5-45k"]):
+        _synthesize(parser.parse_args(argv), None, tmp_path, FakeEmit, lambda *a, **kw: {"fmax_mhz": None})
+    assert budgets == [208, 108]

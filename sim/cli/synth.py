@@ -43,6 +43,10 @@ def run(args) -> int:
     with output_directory(out) as tmp:             # whole or not at all
         r, man = _synthesize(args, bt, tmp, emit, synthesize)
     print(f"wrote {out}/synth.json, report.md, {man['verilog']}, manifest.json")
+    moved = man.get("block_ram_fit", {}).get("lut_ram_memories")
+    if moved:
+        print(f"  {len(moved)} shallow copies in LUT RAM to fit {args.device}'s "
+              f"{man['block_ram_fit']['dp16kd_budget']} DP16KD: {', '.join(moved)}")
     timing = (f"Fmax {r['fmax_mhz']:.1f} MHz (constraint {args.clock_mhz} MHz, {'met' if r['timing_met'] else 'NOT met'}; "
               f"seed {args.seed})"
               if args.pnr and r.get("fmax_mhz") is not None else
