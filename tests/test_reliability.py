@@ -266,6 +266,8 @@ def test_an_output_directory_is_whole_or_untouched_and_keeps_the_users_files(tmp
 @pytest.mark.parametrize("args, words", [
     (["synth", "creep-1d", "--device", "ecp5-1k", "--out", "{dir}"], ["unknown device", "ecp5-1k"]),
     (["synth", "creep-1d", "--seed", "0", "--out", "{dir}"], ["--seed", ">= 1"]),
+    (["synth", "creep-1d", "--block-rams", "209", "--out", "{dir}"], ["--block-rams 209", "208 DP16KD"]),
+    (["synth", "creep-1d", "--block-rams", "-1", "--out", "{dir}"], ["--block-rams", ">= 0"]),
     (["verilog", "creep-1d", "--lanes", "10000", "--out", "{dir}"], ["--lanes", "1..64"]),
     (["simulate", "creep-1d", "--out", "{existing_dir}.npz"], ["is an existing directory"]),
     (["simulate", "creep-1d", "--out", "{existing_file}/r.npz"], ["is not a directory"]),

@@ -73,7 +73,7 @@ def test_rheo_synth_hands_its_placement_seed_to_nextpnr(tmp_path):
 
 def test_rheo_synth_fits_the_devices_block_ram(tmp_path):
     """`rheo synth` hands the streaming core its device's DP16KD (208 on an LFE5U-85F, 108 on a 45F) as the
-    block RAM budget the core fits with LUT RAM copies (hw/stream/core.py)."""
+    block RAM budget the core fits with LUT RAM copies (hw/stream/core.py), or the one `--block-rams` asks."""
     from sim.cli import build_parser
     from sim.cli.synth import _synthesize
     budgets = []
@@ -86,6 +86,7 @@ def test_rheo_synth_fits_the_devices_block_ram(tmp_path):
                     "elements": 1, "nodes": 2, "units_present": [], "cycles_per_step": {"value": 10}}
 
     parser = build_parser()
-    for argv in (["synth", "creep-1d", "--out", "d"], ["synth", "creep-1d", "--out", "d", "--device", "ecp5-45k"]):
+    for argv in (["synth", "creep-1d", "--out", "d"], ["synth", "creep-1d", "--out", "d", "--device", "ecp5-45k"],
+                 ["synth", "creep-1d", "--out", "d", "--block-rams", "160"]):
         _synthesize(parser.parse_args(argv), None, tmp_path, FakeEmit, lambda *a, **kw: {"fmax_mhz": None})
-    assert budgets == [208, 108]
+    assert budgets == [208, 108, 160]

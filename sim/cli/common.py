@@ -28,6 +28,16 @@ def positive_float(text: str) -> float:
     return val
 
 
+def whole_number(text: str) -> int:
+    try:
+        val = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+    if val < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {val}")
+    return val
+
+
 def positive_int(text: str) -> int:
     try:
         val = int(text)

@@ -7,7 +7,8 @@ from pathlib import Path
 
 from sim.synth import ROUTERS
 
-from .common import PRESET_CHOICES, hardware_model, lane_arguments, positive_float, positive_int, scene_argument
+from .common import (PRESET_CHOICES, hardware_model, lane_arguments, positive_float, positive_int, scene_argument,
+                     whole_number)
 from .verilog import full_argument
 
 NAME, HELP = "synth", "synthesise the scene's core for an ECP5: resources, Fmax, steps/s"
@@ -26,6 +27,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--preset", default="auto", choices=PRESET_CHOICES,
                         help="number-format preset (default auto: the narrowest whose bit-true run stays within 1e-3 "
                              "of the object size of golden on the scene; narrow's products fit 18x18 multipliers)")
+    parser.add_argument("--block-rams", type=whole_number, default=None, metavar="N",
+                        help="the streaming core's DP16KD budget (default: all the device has); fewer moves more "
+                             "shallow copies into LUT RAM, which eases routing beside full block RAM rows")
     full_argument(parser)
     parser.add_argument("--no-pnr", dest="pnr", action="store_false",
                         help="Yosys only: resources in minutes, no place and route and no Fmax")
@@ -35,9 +39,12 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from hw import emit
     from sim.runfile import check_output_dir, output_directory
-    from sim.synth import check_device, check_tools, synthesize
+    from golden.errors import BadArgument
+    from sim.synth import block_ram_capacity, check_device, check_tools, synthesize
     out = check_output_dir(args.out)              # every argument before the range analysis and the tools
     check_device(args.device)
+    if args.block_rams is not None and args.block_rams > block_ram_capacity(args.device):
+        raise BadArgument(f"--block-rams {args.block_rams}: {args.device} has {block_ram_capacity(args.device)} DP16KD")
     check_tools(args.pnr)
     bt = hardware_model(args)
     with output_directory(out) as tmp:             # whole or not at all
@@ -61,7 +68,8 @@ def run(args) -> int:
 def _synthesize(args, bt, out: Path, emit, synthesize):
     from sim.synth import block_ram_capacity
     man = emit.write(bt, out, lanes=args.lanes, node_lanes=args.node_lanes, core=args.core, ram="ecp5",
-                     pair_lanes=args.pair_lanes, dp16kd_budget=block_ram_capacity(args.device))
+                     pair_lanes=args.pair_lanes,
+                     dp16kd_budget=block_ram_capacity(args.device) if args.block_rams is None else args.block_rams)
     r = synthesize(out / man["verilog"], man["top"], out, device=args.device, clock_mhz=args.clock_mhz,
                    seed=args.seed, progress=True, place_and_route=args.pnr, router=args.router)
     r.update(scene=man["scene"], preset=man["preset"], full_featured=args.full, lanes=man["lanes"],
