@@ -29,7 +29,7 @@ def add_arguments(parser) -> None:
                              "of the object size of golden on the scene; narrow's products fit 18x18 multipliers)")
     parser.add_argument("--block-rams", type=whole_number, default=None, metavar="N",
                         help="the streaming core's DP16KD budget (default: all the device has); fewer moves more "
-                             "shallow copies into LUT RAM, which eases routing beside full block RAM rows")
+                             "shallow copies into LUT RAM: block RAM, and the routing into it, traded for LUTs")
     full_argument(parser)
     parser.add_argument("--no-pnr", dest="pnr", action="store_false",
                         help="Yosys only: resources in minutes, no place and route and no Fmax")
