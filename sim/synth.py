@@ -55,7 +55,8 @@ Devices: see `DEVICES` (all in the CABGA381 package). nextpnr's `--12k` is the 2
 flip-flops, 32 EBR, 28 multipliers) replaces nextpnr's "available" figures and is what the design must fit.
 
 Fit. Before nextpnr the Yosys cell counts are checked against the device (LUT sites needed = LUT4 + 2
-per CCU2C + 4 per TRELLIS_DPR16X4 (its 64 bits), flip-flops, DP16KD, MULT18X18D, ALU54B); afterwards nextpnr's utilisation is checked
+per CCU2C + 6 per TRELLIS_DPR16X4 (nextpnr packs one into three slices: two of RAM, one for its write
+port), flip-flops, DP16KD, MULT18X18D, ALU54B); afterwards nextpnr's utilisation is checked
 again. A design that does not fit raises `SynthesisError("design TOP does not fit ecp5-25k: 29 of 28
 MULT18X18D (18x18 multipliers) ...")`; when nextpnr itself fails on it, a nextpnr error line (e.g. "no BELs remaining") is quoted.
 
@@ -388,7 +389,7 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
 
     # ---- fit check from the netlist, before place and route
     avail = dict(_CAPACITY[device], **DEVICES[device]["limits"])
-    need = {"TRELLIS_COMB": luts + 2 * ccu2 + 4 * cells.get("TRELLIS_DPR16X4", 0), "TRELLIS_FF": cells.get("TRELLIS_FF", 0),
+    need = {"TRELLIS_COMB": luts + 2 * ccu2 + 6 * cells.get("TRELLIS_DPR16X4", 0), "TRELLIS_FF": cells.get("TRELLIS_FF", 0),
             "DP16KD": cells.get("DP16KD", 0), "MULT18X18D": cells.get("MULT18X18D", 0),
             "ALU54B": cells.get("ALU54B", 0)}
     problems = _fit_problems(need, avail)

@@ -25,8 +25,11 @@ DP16KD in true dual-port mode, both ports reading with their output registers (R
 "OUTREG"); that mode has no 36-bit width, so blocks are 1024 x 18 or 2048 x 9.
 
 A writable memory may instead be `distributed` (LUT RAM): an Amaranth `Memory` marked
-`ram_style = "distributed"`, which Yosys maps to TRELLIS_DPR16X4 (16 x 4 bits each, asynchronous read)
-and a read register, plus the output register: the same ports and latency in either variant. It costs
+`ram_style = "distributed"`, which Yosys maps to TRELLIS_DPR16X4 (16 x 4 bits each, asynchronous read):
+the read address registered, the asynchronous read and its multiplexer, the output register: the same
+ports and latency in either variant (nextpnr, the 1e4 square at P = 5 with the read address unregistered:
+the element lane's slot adder, 27 ns of routing across the die and the LUT RAM's read in one cycle,
+27.7 MHz). It costs
 no DP16KD; a shallow, wide memory (a window copy, a force ring's node copy: 128 words in blocks 512
 deep) spends 3/4 of its blocks' bits on nothing, so the core moves such memories into LUT RAM when the
 block RAM would not fit otherwise (hw/stream/core.py, `fit_block_ram`).
@@ -172,8 +175,14 @@ class BlockRam(wiring.Component):
             m.d.comb += [wp.addr.eq(self.w_addr), wp.data.eq(self.w_data),
                          wp.en.eq(self.w_en if self.segments > 1 else self.w_en[0])]
         for addr, data in self._reads():
-            rp = mem.read_port(domain="sync")
-            m.d.comb += rp.addr.eq(addr)
+            if self.distributed:         # the address registered, then the LUT RAM's asynchronous read
+                addr_q = Signal.like(addr, name="r_addr_q")
+                m.d.sync += addr_q.eq(addr)
+                rp = mem.read_port(domain="comb")
+                m.d.comb += rp.addr.eq(addr_q)
+            else:
+                rp = mem.read_port(domain="sync")
+                m.d.comb += rp.addr.eq(addr)
             m.d.sync += data.eq(rp.data)
         return m
 
