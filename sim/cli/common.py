@@ -28,24 +28,22 @@ def positive_float(text: str) -> float:
     return val
 
 
-def whole_number(text: str) -> int:
+def _int_at_least(text: str, low: int) -> int:
     try:
         val = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
-    if val < 0:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {val}")
+    if val < low:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= {low}, got {val}")
     return val
+
+
+def whole_number(text: str) -> int:
+    return _int_at_least(text, 0)
 
 
 def positive_int(text: str) -> int:
-    try:
-        val = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
-    if val < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {val}")
-    return val
+    return _int_at_least(text, 1)
 
 
 MAX_LANES = 64                                      # hw/core.py CoreConfig
