@@ -18,7 +18,8 @@ tmp_path, for one) would not reach the host, while relative ones (through its ".
        delete -port TOP/x:* TOP/w:CLOCK_PORT %d
        write_json "TOP.json"
 
-   The `setattr` keeps the multipliers' operand registers (hw/rtl_fixed.py DSP_OPERAND_TAG) apart:
+   The `setattr` keeps the multipliers' operand registers (hw/rtl_fixed.py DSP_OPERAND_TAG) apart, and the
+   write registers of LUT RAM copies (hw/stream/bram.py, the same tag):
    `opt_merge` would make one flip-flop of two that hold the same value, feeding DSP blocks far apart;
    with `keep` on the cell each stays beside its own (a design without such names is unchanged).
    `synth_ecp5` in Yosys 0.70 always maps LUTs with ABC9 (`abc9 -W 300` in its map_luts step); the

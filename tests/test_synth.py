@@ -236,27 +236,30 @@ def test_instantiated_multipliers_hold_their_registers(tmp_path):
 
 
 class Distributed(wiring.Component):
-    """One distributed BlockRam, 32 x 84 in two segments (a force ring's node copy under narrow)."""
+    """Two distributed BlockRams, 32 x 84 in two segments (force-ring node copies under narrow), written
+    alike (as the window's copies are), each with its own read port."""
 
     def __init__(self, ram):
         self.ram = ram
-        super().__init__({"w_addr": In(5), "w_data": In(84), "w_en": In(2), "r_addr": In(5), "r_data": Out(84)})
+        super().__init__({"w_addr": In(5), "w_data": In(84), "w_en": In(2), "r_addr": In(5).array(2),
+                          "r_data": Out(84).array(2)})
 
     def elaborate(self, platform):
         from hw.stream.bram import BlockRam
         m = Module()
-        m.submodules.mem = mem = BlockRam(84, 32, segments=2, ram=self.ram, distributed=True)
-        wiring.connect(m, wiring.flipped(self), mem)
+        for k in range(2):
+            m.submodules[f"mem{k}"] = mem = BlockRam(84, 32, segments=2, ram=self.ram, distributed=True)
+            m.d.comb += [mem.w_addr.eq(self.w_addr), mem.w_data.eq(self.w_data), mem.w_en.eq(self.w_en),
+                         mem.r_addr.eq(self.r_addr[k]), self.r_data[k].eq(mem.r_data)]
         return m
 
 
 def test_distributed_block_ram_maps_to_lut_ram(tmp_path):
     """Yosys puts a `distributed` BlockRam in TRELLIS_DPR16X4 (per 42-bit segment 11 columns of 4 bits, x 2
-    rows of 16 words),
-    no DP16KD, with its read address registered (5 flip-flops) before the asynchronous read and its output
-    register (84): nothing but the registered address drives the LUT RAM's read."""
+    rows of 16 words), no DP16KD; each copy keeps its own write registers (5 + 84 + 2 flip-flops: merged,
+    one decoder would serve copies far apart), its registered read address (5) and output register (84)."""
     src = tmp_path / "lut.v"
     src.write_text(verilog.convert(Distributed("ecp5"), name="lut"))
     r = synthesize(src, "lut", tmp_path / "out", device="ecp5-85k", place_and_route=False)
-    assert r["block_rams"] == 0 and r["distributed_rams"] == 2 * 11 * 2, r
-    assert r["flip_flops"] == 5 + 84, r
+    assert r["block_rams"] == 0 and r["distributed_rams"] == 2 * (2 * 11 * 2), r
+    assert r["flip_flops"] == 2 * ((5 + 84 + 2) + 5 + 84), r
