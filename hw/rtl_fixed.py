@@ -25,7 +25,7 @@ from .fixed import SQ, UQ, Shape
 from .mult18x18d import mult18x18d
 
 __all__ = ["SQ", "UQ", "Shape", "FixedValue", "Const", "as_shape", "as_float", "DSP_BITS", "LIMB_BITS",
-           "product_latency", "pipelined_product", "registered_product", "DSP_REGS", "DSP_VARIANTS", "DSP_OPERAND_TAG", "tree_sum", "multipliers", "csd_digits", "shift_add_choice",
+           "product_latency", "pipelined_product", "registered_product", "DSP_REGS", "DSP_VARIANTS", "KEEP_APART_TAG", "tree_sum", "multipliers", "csd_digits", "shift_add_choice",
            "constant_product", "CSD_ADDERS_PER_MULTIPLIER"]
 
 DSP_BITS = 18     # operand width of one MULT18X18D (18 x 18 bits, signed or unsigned)
@@ -169,9 +169,10 @@ def _operand_width(shape, signed_product: bool) -> int:
 DSP_REGS = 2     # a multiplier's own registers (`registered_product`): its operands before it, its
                  # product after it, so that the placer can put them beside its DSP block
 DSP_VARIANTS = ("sim", "ecp5")   # `registered_product`: multipliers as Amaranth products, or MULT18X18D instances
-DSP_OPERAND_TAG = "_dsp_in"   # in the names of the operand registers: Yosys would merge two that hold the
-                              # same value into one flip-flop feeding DSP blocks far apart (nextpnr: 2.9 ns
-                              # to the farther), so sim/synth.py marks them `keep`
+KEEP_APART_TAG = "_keep_apart"   # in the names of registers Yosys must not merge (the multipliers' operand
+                                 # registers, hw/stream/bram.py's LUT RAM write registers): it would make one
+                                 # flip-flop of two that hold the same value, feeding blocks far apart (nextpnr:
+                                 # 2.9 ns to the farther), so sim/synth.py marks them `keep`
 
 
 def product_latency(a_shape, b_shape) -> int:
@@ -294,7 +295,7 @@ def registered_product(m: Module, a, b, name: str, dsp: str = "sim") -> tuple[Va
         r = Signal(v.shape(), name=nm, reset_less=True)
         m.d.sync += r.eq(v)
         return r
-    a, b = (v if isinstance(v, (int, _AConst)) else reg(Value.cast(v), f"{name}{DSP_OPERAND_TAG}") for v in (a, b))
+    a, b = (v if isinstance(v, (int, _AConst)) else reg(Value.cast(v), f"{name}{KEEP_APART_TAG}") for v in (a, b))
     p, lat = pipelined_product(m, a, b, name)
     return reg(p, f"{name}_dsp_out"), lat + DSP_REGS
 
@@ -335,7 +336,7 @@ def _ecp5_product(m: Module, a, b, name: str) -> tuple[Value, int] | None:
 
     def registered(v, nm):
         if nm not in operands:
-            operands[nm] = v if isinstance(v, _AConst) else reg(v, v.shape(), f"{name}_{nm}{DSP_OPERAND_TAG}")
+            operands[nm] = v if isinstance(v, _AConst) else reg(v, v.shape(), f"{name}_{nm}{KEEP_APART_TAG}")
         return operands[nm]
     parts = []
     for i, (oa, la) in enumerate(_limbs(a_, limb)):

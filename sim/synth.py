@@ -11,15 +11,15 @@ tmp_path, for one) would not reach the host, while relative ones (through its ".
        read_verilog [-sv] "RELATIVE/PATH/TO/VERILOG"
        hierarchy -top TOP
        proc
-       setattr -set keep 1 w:*_dsp_in* %ci1:+$dff[Q] w:*_dsp_in* %d
+       setattr -set keep 1 w:*_keep_apart* %ci1:+$dff[Q] w:*_keep_apart* %d
        synth_ecp5 -top TOP
        stat
        tee -q -o yosys-stat.json stat -json
        delete -port TOP/x:* TOP/w:CLOCK_PORT %d
        write_json "TOP.json"
 
-   The `setattr` keeps the multipliers' operand registers (hw/rtl_fixed.py DSP_OPERAND_TAG) apart, and the
-   write registers of LUT RAM copies (hw/stream/bram.py, the same tag):
+   The `setattr` keeps the registers named with hw/rtl_fixed.py KEEP_APART_TAG apart (the multipliers'
+   operand registers, the write registers of LUT RAM copies in hw/stream/bram.py):
    `opt_merge` would make one flip-flop of two that hold the same value, feeding DSP blocks far apart;
    with `keep` on the cell each stays beside its own (a design without such names is unchanged).
    `synth_ecp5` in Yosys 0.70 always maps LUTs with ABC9 (`abc9 -W 300` in its map_luts step); the
@@ -84,7 +84,7 @@ import time
 from pathlib import Path
 
 from golden.errors import BadArgument, RheoError
-from hw.rtl_fixed import DSP_OPERAND_TAG
+from hw.rtl_fixed import KEEP_APART_TAG
 
 __all__ = ["DEVICES", "SynthesisError", "synthesize"]
 
@@ -261,7 +261,7 @@ def yosys_script(read: str, top: str, clock_port: str, netlist: str) -> str:
         read,
         f"hierarchy -top {top}",
         "proc",
-        f"setattr -set keep 1 w:*{DSP_OPERAND_TAG}* %ci1:+$dff[Q] w:*{DSP_OPERAND_TAG}* %d",
+        f"setattr -set keep 1 w:*{KEEP_APART_TAG}* %ci1:+$dff[Q] w:*{KEEP_APART_TAG}* %d",
         f"synth_ecp5 -top {top}",
         "stat",
         "tee -q -o yosys-stat.json stat -json",

@@ -210,7 +210,7 @@ class SharedOperand(wiring.Component):
 
 
 def test_operand_registers_of_multipliers_stay_apart(tmp_path):
-    """Each multiplier keeps its own operand registers (hw/rtl_fixed.py DSP_OPERAND_TAG): 4 x 18 operand
+    """Each multiplier keeps its own operand registers (hw/rtl_fixed.py KEEP_APART_TAG): 4 x 18 operand
     bits and 2 x 2 x 36 product bits (pipelined_product's register, registered_product's), 216 flip-flops;
     with x's two copies merged there would be 198."""
     src = tmp_path / "shared.v"

@@ -36,18 +36,18 @@ def test_a_result_of_another_yosys_script_answers_nothing(tmp_path, monkeypatch)
     runs = []
 
     def fake(verilog, top, out_dir, device, clock_mhz, progress, place_and_route):
-        runs.append(synth.DSP_OPERAND_TAG)
+        runs.append(synth.KEEP_APART_TAG)
         out_dir.mkdir(parents=True)
-        (out_dir / "synth.json").write_text(json.dumps({"tag": synth.DSP_OPERAND_TAG}))
-        return {"tag": synth.DSP_OPERAND_TAG}
+        (out_dir / "synth.json").write_text(json.dumps({"tag": synth.KEEP_APART_TAG}))
+        return {"tag": synth.KEEP_APART_TAG}
 
     monkeypatch.setattr(synth, "synthesize", fake)
     v = tmp_path / "core.v"
     v.write_text("module rheo_core; endmodule\n")
-    assert synth.synthesize_cached(v, "rheo_core")[0] == {"tag": "_dsp_in"}
-    assert synth.synthesize_cached(v, "rheo_core")[0] == {"tag": "_dsp_in"} and len(runs) == 1
-    monkeypatch.setattr(synth, "DSP_OPERAND_TAG", "_other")
-    assert synth.synthesize_cached(v, "rheo_core")[0] == {"tag": "_other"} and runs == ["_dsp_in", "_other"]
+    assert synth.synthesize_cached(v, "rheo_core")[0] == {"tag": "_keep_apart"}
+    assert synth.synthesize_cached(v, "rheo_core")[0] == {"tag": "_keep_apart"} and len(runs) == 1
+    monkeypatch.setattr(synth, "KEEP_APART_TAG", "_other")
+    assert synth.synthesize_cached(v, "rheo_core")[0] == {"tag": "_other"} and runs == ["_keep_apart", "_other"]
 
 
 def test_rheo_synth_hands_its_placement_seed_to_nextpnr(tmp_path):

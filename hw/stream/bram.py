@@ -46,7 +46,7 @@ from amaranth.lib import wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
-from ..rtl_fixed import DSP_OPERAND_TAG as KEEP_APART_TAG    # registers Yosys must not merge (sim/synth.py)
+from ..rtl_fixed import KEEP_APART_TAG    # registers Yosys must not merge (sim/synth.py)
 
 __all__ = ["BlockRam", "LATENCY", "RAM_VARIANTS", "DP16KD_MODEL", "plan_blocks", "ram_record", "lut_rams"]
 
