@@ -2,7 +2,9 @@
 
 The replay below knows only the hardware's timing conventions (restated here, not imported): item k of
 a stream runs in lane k % P at slot k // P, its window read is presented 2 cycles after issue (block RAM
-latency), its contribution is written RMW = 3 cycles after its pipeline stage; a read presented in the
+latency), a filled group is written into the window MEM + FILL = 3 cycles after its store read (the
+block RAM's latency, then the registers in front of each window copy), its contribution is written
+RMW = 3 cycles after its pipeline stage; a read presented in the
 cycle of a write to the same word is undefined. It takes from the schedule only its decisions (the fill
 and retirement cycle of every group, the period T, the window Wg, the prologue A0), replays a few steps
 of every memory's writes and reads, and checks: every window read (items', node lanes') sees the group
@@ -26,7 +28,8 @@ from hw.stream.schedule import BandwidthError, Latencies, build_schedule
 
 from conftest import scene_system
 
-MEM, RMW = 2, 3          # block RAM read latency; a force ring word is written RMW cycles after its read
+MEM, FILL, RMW = 2, 1, 3    # block RAM read latency; the fill's registers before the window copies; a
+                            # force ring word is written RMW cycles after its read
 
 
 class Violation(AssertionError):
@@ -72,7 +75,7 @@ def replay(order, P, Q, lat, T, Wg, fill, retire, A0, steps=3, Pp=None):
     win = defaultdict(list)
     for k in range(steps):
         for g in range(Gs):
-            win[(k * Gs + g) % Wg].append((t0(k) + int(fill[g]) + MEM, (k, g)))
+            win[(k * Gs + g) % Wg].append((t0(k) + int(fill[g]) + MEM + FILL, (k, g)))
     for log in win.values():
         log.sort()
 

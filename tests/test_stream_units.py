@@ -133,19 +133,22 @@ def test_node_window_copies_read_the_filled_groups():
             d[dut.reads[k].addr], d[dut.reads[k].bank] = p["reads"][k]
         return d
 
+    F = 1          # a fill presented in cycle t is written at the end of cycle t + F (the copies' registers)
+
     def sample(t, get):
         p = plan[t]
         log.append([get(dut.reads[k].data) for k in range(3)] + [get(dut.groups[0].data)])
+        w = plan[t - F] if t >= F else dict(fe=0)      # the fill written in this cycle
         exp = []
         for k, (a, b) in enumerate(p["reads"]):
-            if p["fe"] and a == p["fa"]:
+            if w["fe"] and a == w["fa"]:
                 exp.append(None)
             else:
                 exp.append((ring[a] >> (b * nb)) & ((1 << nb) - 1) if k < 3 else ring[a])
         for k, e in enumerate(exp):                 # node reads 3 cycles later, the group read 2
             expect.setdefault(t + (dut.node_latency if k < 3 else dut.latency), [None] * 4)[k] = e
-        if p["fe"]:
-            ring[p["fa"]] = p["fd"]
+        if w["fe"]:
+            ring[w["fa"]] = w["fd"]
 
     simulate(dut, len(plan), drive, sample)
     n = 0

@@ -12,16 +12,17 @@ the fill reads a group from the node store, a node lane retires one node of a gr
              the bank's multiplexer registered, hw/stream/window.py)
   contrib.   c + s: the pipeline's force (stage s: `Latencies.element` / `.pair`) reads its force ring;
              the sum is written at c + s + RMW (RMW = 3), readable from c + s + RMW + 1
-  fill       t_f[g]: the node store's word g is read; written into every window copy at t_f[g] + M,
-             readable by a read presented from t_f[g] + M + 1
+  fill       t_f[g]: the node store's word g is read; registered in front of each window copy
+             (F = FILL_FANOUT), written into every copy at t_f[g] + M + F, readable by a read presented
+             from t_f[g] + M + F + 1
   retire     t_r[g]: the node lanes present group g's window and force ring addresses; results at
              t_r[g] + `Latencies.node`, written into the node store in that cycle
 
 Rules (a read presented in the cycle of a write to the same word sees neither value for sure, so every
 read the data path uses is strictly before or after the write it depends on):
 
-  fill       t_f[g] = min(first read of g - M - 1, t_f[g + 1] - 1): as late as possible, one group a cycle
-  retire     t_r[g] = max(last contribution write of g + 1, t_f[g] + M + 1, t_r[g - 1] + 1): as early as
+  fill       t_f[g] = min(first read of g - M - F - 1, t_f[g + 1] - 1): as late as possible, one group a cycle
+  retire     t_r[g] = max(last contribution write of g + 1, t_f[g] + M + F + 1, t_r[g - 1] + 1): as early as
              possible, in group order, one group a cycle
   period     T = max(C, a write stage + 1 (an element's a is written before the next step reads it),
              fill span, retirement span (each at most one period), max_g t_r[g] + node + 1 - t_f[g]
@@ -51,6 +52,8 @@ import numpy as np
 from .order import StreamOrder
 
 MEMORY = 2            # block RAM: address presented in cycle t, data (from its output register) in t + 2
+FILL_FANOUT = 1       # the fill's registers in front of each window copy (hw/stream/window.py): one
+                      # register feeding every copy across the die was a long route at 1e4 elements
 RMW = 3               # a force ring word read at stage s is written back at stage s + RMW (its sum
                       # registered before the block RAM's write port: hw/stream/forcering.py)
 LOOKAHEAD = 3         # the phase ROMs are read this many cycles ahead of their process (read latency 2,
@@ -159,7 +162,7 @@ class StreamSchedule:
             "bandwidth": self.bandwidth, "prologue_A0": self.issue_start,
             "fill_start": self.fill_start, "retire_start": self.retire_start, "drain": self.drain,
             "run_cycles": "A0 + (n - 1) T + drain + 1",
-            "latencies": {"memory": MEMORY, "rmw_write": RMW, "lookahead": LOOKAHEAD, "saturation_tail": SAT_TAIL,
+            "latencies": {"memory": MEMORY, "fill_fanout": FILL_FANOUT, "rmw_write": RMW, "lookahead": LOOKAHEAD, "saturation_tail": SAT_TAIL,
                           "element": lat.element, "element_state": lat.element_state, "pair": lat.pair,
                           "node": lat.node},
         }
@@ -196,7 +199,7 @@ def build_schedule(order: StreamOrder, lanes: int, node_lanes: int, lat: Latenci
     E, Pn = len(order.ei), len(order.pair_nodes)
     if Pn and lat.pair <= 0:
         raise ValueError("pairs in the stream but no pair pipeline latency")
-    M = MEMORY
+    M, F = MEMORY, FILL_FANOUT
     Ce, Cp = -(-E // P), -(-Pn // Pp)
     C = max(Ce, Cp, 1)
     Gs = -(-N // Q)
@@ -217,14 +220,14 @@ def build_schedule(order: StreamOrder, lanes: int, node_lanes: int, lat: Latenci
     fill = np.zeros(Gs, np.int64)
     nxt = NONE
     for g in range(Gs - 1, -1, -1):
-        want = rd_first[g] - M - 1 if rd_first[g] < NONE else C + 1
+        want = rd_first[g] - M - F - 1 if rd_first[g] < NONE else C + 1
         fill[g] = min(want, nxt - 1)
         nxt = fill[g]
     # retirement: as early as possible, one group a cycle, in group order
     retire = np.zeros(Gs, np.int64)
     prev = -NONE
     for g in range(Gs):
-        retire[g] = max(wr_last[g] + 1, fill[g] + M + 1, prev + 1)
+        retire[g] = max(wr_last[g] + 1, fill[g] + M + F + 1, prev + 1)
         prev = retire[g]
 
     bounds = {
@@ -244,7 +247,7 @@ def build_schedule(order: StreamOrder, lanes: int, node_lanes: int, lat: Latenci
     while Wg <= max_window_groups:
         v = g + Wg
         s, g2 = v // Gs, v % Gs
-        refill = s * T + fill[g2] + M                     # the fill write of the slot's next group
+        refill = s * T + fill[g2] + M + F                 # the fill write of the slot's next group
         first_w = np.where(wr_first[g2] < NONE, s * T + wr_first[g2], NONE)
         if np.all(last_ring_read <= refill - 1) and np.all(retire <= first_w - 1):
             ok = True

@@ -2,7 +2,9 @@
 
 The ring holds Wg groups (W = Wg Q nodes, Wg a power of two). Virtual group v = k Gs + g (group g of
 step k; the index runs on across steps) lives in slot v mod Wg. The fill writes a whole group word
-(`fill`, one a cycle) into every copy; each read port reads its own copy. A node read port (`reads`)
+(`fill`, one a cycle) into every copy, through registers of each copy's own (FILL_FANOUT = 1 cycle, kept
+apart in Yosys: one register feeding every copy across the die was a long route at 1e4 elements), so a
+fill presented in cycle t is written at the end of cycle t + 1; each read port reads its own copy. A node read port (`reads`)
 presents a slot and the node's bank (n % Q) and gets that node's word NODE_READ_LATENCY = 3 cycles
 later (the block RAM's 2, then the bank's multiplexer into a register: nextpnr put 4.8 ns of routing
 between a window copy and the multiplexer, which fed an element lane's first subtraction in the same
@@ -17,8 +19,10 @@ from amaranth.hdl import Module
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
+from ..rtl_fixed import KEEP_APART_TAG
 from .bram import LATENCY, BlockRam, ram_record
 from .nodeword import NodeWord, bits_for, delay, segment
+from .schedule import FILL_FANOUT
 
 NODE_READ_LATENCY = LATENCY + 1
 
@@ -33,7 +37,7 @@ class NodeWindow(wiring.Component):
     def __init__(self, word: NodeWord, node_lanes: int, window_groups: int, node_reads: int,
                  group_reads: int, ram: str = "sim"):
         self.word, self.Q, self.Wg, self.ram = word, node_lanes, window_groups, ram
-        self.latency, self.node_latency = LATENCY, NODE_READ_LATENCY
+        self.latency, self.node_latency, self.fill_latency = LATENCY, NODE_READ_LATENCY, FILL_FANOUT
         self.n_reads, self.n_groups = node_reads, group_reads
         self.lut_copies: set[int] = set()      # copies in LUT RAM (StreamCore's block RAM fit)
         wb, gw = bits_for(window_groups), node_lanes * word.bits
@@ -61,11 +65,14 @@ class NodeWindow(wiring.Component):
         for k, (port, single) in enumerate(ports):
             ring = self.copy(k)
             m.submodules[f"copy{k}"] = ring
-            m.d.comb += [ring.w_addr.eq(self.fill_addr), ring.w_data.eq(self.fill_data),
-                         ring.w_en.eq(self.fill_en), ring.r_addr.eq(port.addr)]
+            for src, dst, nm in ((self.fill_addr, ring.w_addr, "addr"), (self.fill_data, ring.w_data, "data"),
+                                 (self.fill_en, ring.w_en, "en")):
+                m.d.comb += dst.eq(delay(m, src, FILL_FANOUT, f"copy{k}_fill_{nm}{KEEP_APART_TAG}"))
+            m.d.comb += ring.r_addr.eq(port.addr)
             if single:
                 bank = delay(m, port.bank, LATENCY, f"bank{k}")
                 m.d.sync += port.data.eq(segment(ring.r_data, bank, self.word.bits, self.Q))
             else:
                 m.d.comb += port.data.eq(ring.r_data)
         return m
+
