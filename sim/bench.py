@@ -162,7 +162,8 @@ def bench_fixed(n_elements: int, min_seconds: float = 1.0, preset: str = "wide")
 def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes: int = 1,
                simulator: str = "verilator", steps: int = 2, fmax_mhz: float | None = None,
                device: str = "ecp5-85k", min_seconds: float = 1.0, range_steps: int | None = None,
-               log=None, core: str = "auto", pair_lanes: int | None = None) -> dict:
+               log=None, core: str = "auto", pair_lanes: int | None = None, router: str = "router1", seed: int = 1,
+               block_rams: int | None = None) -> dict:
     """Modelled FPGA throughput of `system`'s specialised core and the golden model's measured throughput.
 
     The preset ("auto": the narrowest within 1e-3 of the object size of golden, sim.backends.narrowest_preset)
@@ -170,8 +171,9 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
     Cycles per step come from the HDL simulation: the core's CYCLES register over a run of 1 step and a
     run of `steps` steps after it (their difference over steps - 1: the streaming core's period, without
     its prologue and epilogue), from the initial state; each read-back must equal the bit-true model's.
-    With `fmax_mhz` None the core is placed and routed for `device` (once per Verilog, cached in
-    build/synth/; the streaming core with its DP16KD instances).
+    With `fmax_mhz` None the core is placed and routed for `device` (once per Verilog, router and seed, cached
+    in build/synth/; the streaming core with its DP16KD instances, fitted to `block_rams` DP16KD, default
+    all the device has).
     A scene with a [probe] also streams PROBE_SAMPLES device samples through the probe port (state checked
     after them); the row adds the port's latency (the manifest's cycles, equal to the measured ones) in
     microseconds and the device samples per second at Fmax (`probe_rates`).
@@ -232,11 +234,11 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
         say(f"place and route for {device} (Yosys + nextpnr, once per Verilog; tens of minutes for large cores)")
         synth_dir = core_dir
         if kind == "stream":                          # synthesis takes the DP16KD instances
-            # fit the device's block RAM (LUT RAM copies, hw/stream/core.py)
+            # fit the device's block RAM, or the budget asked (LUT RAM copies, hw/stream/core.py)
             synth_dir, _, _ = emit_core(bt, lanes, node_lanes, core=kind, ram="ecp5", pair_lanes=pair_lanes,
-                                        dp16kd_budget=block_ram_capacity(device))
+                                        dp16kd_budget=block_ram_capacity(device) if block_rams is None else block_rams)
         res, synth_dir = synthesize_cached(synth_dir / f"{man['top']}.v", man["top"], device=device,
-                                           progress=log is not None)
+                                           progress=log is not None, router=router, seed=seed)
         fmax_mhz, source = res["fmax_mhz"], f"measured: nextpnr-ecp5 on {device} ({synth_dir})"
         row["resources"] = {k: res[k] for k in ("luts", "flip_flops", "mult18x18", "block_rams")}
     else:

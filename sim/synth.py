@@ -280,15 +280,16 @@ ROUTERS = ("router1", "router2")   # nextpnr's routers: router1 its default, rou
 
 
 def synthesize_cached(verilog: Path, top: str, device: str = "ecp5-85k", clock_mhz: float = 100.0,
-                      place_and_route: bool = True, progress: bool = False) -> tuple[dict, Path]:
-    """synthesize() once per Verilog text, top, device, clock, Yosys script and place-and-route choice: the
-    results live in build/synth/HASH-DEVICE-pnr|yosys/ (a place-and-route result also answers a Yosys-only
-    question).
+                      place_and_route: bool = True, progress: bool = False, router: str = "router1",
+                      seed: int = 1) -> tuple[dict, Path]:
+    """synthesize() once per Verilog text, top, device, clock, Yosys script, nextpnr router and seed and
+    place-and-route choice: the results live in build/synth/HASH-DEVICE-pnr|yosys/ (a place-and-route
+    result also answers a Yosys-only question).
     Returns (result, its directory). A failed or interrupted run leaves no directory behind."""
     import hashlib
     text = Path(verilog).read_bytes()
     flow = yosys_script("", top, "clk", "")       # a result of an earlier script answers nothing
-    digest = hashlib.sha256(text + json.dumps([top, device, clock_mhz, flow]).encode()).hexdigest()[:16]
+    digest = hashlib.sha256(text + json.dumps([top, device, clock_mhz, flow, router, seed]).encode()).hexdigest()[:16]
     root = cache_root()
     kinds = ["pnr"] if place_and_route else ["pnr", "yosys"]
     for kind in kinds:
@@ -299,7 +300,7 @@ def synthesize_cached(verilog: Path, top: str, device: str = "ecp5-85k", clock_m
     tmp = root / f".{d.name}.{os.getpid()}.tmp"
     try:
         result = synthesize(verilog, top, tmp, device=device, clock_mhz=clock_mhz, progress=progress,
-                            place_and_route=place_and_route)
+                            place_and_route=place_and_route, router=router, seed=seed)
         if d.exists():                    # another run finished first: keep its result
             return json.loads((d / "synth.json").read_text()), d
         os.replace(tmp, d)
@@ -312,6 +313,12 @@ def check_device(device: str) -> None:
     """An unknown device is refused before any work (rheo synth, bench --backend fpga)."""
     if device not in DEVICES:
         raise BadArgument(f"unknown device {device!r}; known devices: {', '.join(DEVICES)}")
+
+
+def check_block_rams(block_rams: int | None, device: str) -> None:
+    """A DP16KD budget (`--block-rams`) beyond what `device` has is refused before any work."""
+    if block_rams is not None and block_rams > block_ram_capacity(device):
+        raise BadArgument(f"--block-rams {block_rams}: {device} has {block_ram_capacity(device)} DP16KD")
 
 
 def check_tools(place_and_route: bool = True) -> None:

@@ -11,7 +11,7 @@ def test_a_yosys_only_result_does_not_answer_place_and_route(tmp_path, monkeypat
     monkeypatch.setenv("RHEO_BUILD", str(tmp_path / "build"))
     runs = []
 
-    def fake(verilog, top, out_dir, device, clock_mhz, progress, place_and_route):
+    def fake(verilog, top, out_dir, device, clock_mhz, progress, place_and_route, **nextpnr):
         runs.append(place_and_route)
         out_dir.mkdir(parents=True)
         result = {"fmax_mhz": 91.0 if place_and_route else None}
@@ -35,7 +35,7 @@ def test_a_result_of_another_yosys_script_answers_nothing(tmp_path, monkeypatch)
     monkeypatch.setenv("RHEO_BUILD", str(tmp_path / "build"))
     runs = []
 
-    def fake(verilog, top, out_dir, device, clock_mhz, progress, place_and_route):
+    def fake(verilog, top, out_dir, device, clock_mhz, progress, place_and_route, **nextpnr):
         runs.append(synth.KEEP_APART_TAG)
         out_dir.mkdir(parents=True)
         (out_dir / "synth.json").write_text(json.dumps({"tag": synth.KEEP_APART_TAG}))
@@ -90,3 +90,48 @@ def test_rheo_synth_fits_the_devices_block_ram(tmp_path):
                  ["synth", "creep-1d", "--out", "d", "--block-rams", "160"]):
         _synthesize(parser.parse_args(argv), None, tmp_path, FakeEmit, lambda *a, **kw: {"fmax_mhz": None})
     assert budgets == [208, 108, 160]
+
+
+def test_router_and_seed_reach_nextpnr_and_key_the_cache(tmp_path, monkeypatch):
+    """`synthesize_cached` hands router and seed to synthesize() and files each choice apart: a router1
+    result does not answer a router2 question (their Fmax differ)."""
+    monkeypatch.setenv("RHEO_BUILD", str(tmp_path / "build"))
+    runs = []
+
+    def fake(verilog, top, out_dir, router, seed, **kw):
+        runs.append((router, seed))
+        out_dir.mkdir(parents=True)
+        (out_dir / "synth.json").write_text(json.dumps({"router": router, "seed": seed}))
+        return {"router": router, "seed": seed}
+
+    monkeypatch.setattr(synth, "synthesize", fake)
+    v = tmp_path / "core.v"
+    v.write_text("module rheo_core; endmodule\n")
+    assert synth.synthesize_cached(v, "rheo_core")[0] == {"router": "router1", "seed": 1}
+    assert synth.synthesize_cached(v, "rheo_core", router="router2", seed=3)[0] == {"router": "router2", "seed": 3}
+    assert synth.synthesize_cached(v, "rheo_core", router="router2", seed=3)[0] == {"router": "router2", "seed": 3}
+    assert synth.synthesize_cached(v, "rheo_core", seed=3)[0] == {"router": "router1", "seed": 3}
+    assert runs == [("router1", 1), ("router2", 3), ("router1", 3)]
+
+
+def test_rheo_bench_hands_its_place_and_route_choices_to_the_fpga_benchmark(monkeypatch):
+    """`rheo bench --backend fpga --router R --seed N --block-rams B` reaches sim.bench's fpga run (which
+    builds the core for B DP16KD and places and routes it with R and N); defaults router1, 1, None (all
+    the device has)."""
+    import sim.bench as bench
+    from sim.cli import build_parser
+    from sim.cli.bench import run
+    seen = []
+
+    def fake_run(backend, **kw):
+        seen.append({k: kw[k] for k in ("router", "seed", "block_rams")})
+        return []
+    monkeypatch.setattr(bench, "run", fake_run)
+    monkeypatch.setattr("sim.cli.bench._print_fpga", lambda rows: None)
+    monkeypatch.setattr("sim.synth.check_tools", lambda place_and_route=True: None)
+    parser = build_parser()
+    for argv in (["bench", "--backend", "fpga"],
+                 ["bench", "--backend", "fpga", "--router", "router2", "--seed", "4", "--block-rams", "160"]):
+        assert run(parser.parse_args(argv)) == 0
+    assert seen == [{"router": "router1", "seed": 1, "block_rams": None},
+                    {"router": "router2", "seed": 4, "block_rams": 160}]

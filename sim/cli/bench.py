@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import json
 
-from .common import (PRESET_CHOICES, UsageError, check_backend_fits, check_square_fits, lane_arguments, load_system, positive_float,
-                     positive_int)
+from .common import (PRESET_CHOICES, UsageError, check_backend_fits, check_square_fits, lane_arguments, load_system,
+                     place_and_route_arguments, positive_float, positive_int)
 
 NAME, HELP = "bench", "measure steps/s and element-updates/s on generated meshes"
 BENCH_BACKENDS = ("golden", "cpu", "fixed", "fpga")
@@ -30,11 +30,16 @@ def add_arguments(parser) -> None:
     parser.add_argument("--fmax-mhz", type=positive_float,
                         help="fpga: clock to model with, instead of placing and routing the core (minutes to an hour)")
     parser.add_argument("--device", default="ecp5-85k", help="fpga: device for place and route (default ecp5-85k)")
+    place_and_route_arguments(parser, "fpga, place and route: ")
     parser.add_argument("--haptic", action="store_true",
                         help="the haptic loop of a --scene with a [probe]: time per device sample of --backend "
                              "(median, 99.9th percentile) and the golden and bit-true loop rates, same run")
     parser.add_argument("--samples", type=positive_int, default=10_000,
                         help="--haptic: device samples timed one by one (default 10000)")
+
+
+def _place_and_route_asked(args) -> bool:
+    return args.router != "router1" or args.seed != 1 or args.block_rams is not None
 
 
 def run(args) -> int:
@@ -43,11 +48,17 @@ def run(args) -> int:
         raise UsageError(f"backend '{args.backend}' has no benchmark (available: {', '.join(BENCH_BACKENDS)})")
     if args.backend == "fpga":                      # every argument and tool before any work
         from sim.simulators import check_simulator
-        from sim.synth import check_device, check_tools
+        from sim.synth import check_block_rams, check_device, check_tools
         check_simulator(args.simulator)
         check_device(args.device)
+        check_block_rams(args.block_rams, args.device)
         if args.fmax_mhz is None:
             check_tools(place_and_route=True)
+        elif _place_and_route_asked(args):
+            raise UsageError("--router, --seed and --block-rams choose how the core is placed and routed: "
+                             "not with --fmax-mhz (no place and route)")
+    elif _place_and_route_asked(args):
+        raise UsageError("--router, --seed and --block-rams belong to --backend fpga")
     elif (any(v is not None for v in (args.preset, args.fmax_mhz, args.pair_lanes)) or args.lanes != 1
           or args.node_lanes != 1 or args.core != "auto"):
         raise UsageError("--preset, --lanes, --node-lanes, --pair-lanes, --core and --fmax-mhz belong to --backend fpga")
@@ -64,6 +75,7 @@ def run(args) -> int:
         fpga = dict(preset=args.preset or "auto", lanes=args.lanes, node_lanes=args.node_lanes, core=args.core,
                     pair_lanes=args.pair_lanes,
                     simulator=args.simulator, steps=args.hdl_steps, fmax_mhz=args.fmax_mhz, device=args.device,
+                    router=args.router, seed=args.seed, block_rams=args.block_rams,
                     log=None if args.json else (lambda m: print(f"  {m}", flush=True)))
     rows = bench.run(args.backend, sizes=sizes, min_seconds=args.seconds, scene=scene, **fpga)
     if args.json:

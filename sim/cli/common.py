@@ -74,6 +74,20 @@ def lane_arguments(parser) -> None:
                              "auto: streaming unless the scene has collisions")
 
 
+def place_and_route_arguments(parser, what: str = "") -> None:
+    """nextpnr's router and seed and the streaming core's DP16KD budget (`rheo synth`, `rheo bench --backend
+    fpga`); `what` prefixes the help (e.g. "fpga: ")."""
+    from sim.synth import ROUTERS
+    parser.add_argument("--router", choices=ROUTERS, default="router1",
+                        help=f"{what}nextpnr's router (default router1, nextpnr's own; router2 gets through congested "
+                             "designs sooner)")
+    parser.add_argument("--seed", type=positive_int, default=1,
+                        help=f"{what}nextpnr's placement seed (default 1); Fmax moves by a few MHz from seed to seed")
+    parser.add_argument("--block-rams", type=whole_number, default=None, metavar="N",
+                        help=f"{what}the streaming core's DP16KD budget (default: all the device has); fewer moves "
+                             "more shallow copies into LUT RAM: block RAM, and the routing into it, traded for LUTs")
+
+
 def load_system(ref: str):
     """A built-in scene by name, a scene file by path, `square:N`: the benchmark's generated square of about
     N elements, or `box:N`: its 3D counterpart (sim/bench.py)."""

@@ -5,10 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from sim.synth import ROUTERS
-
-from .common import (PRESET_CHOICES, hardware_model, lane_arguments, positive_float, positive_int, scene_argument,
-                     whole_number)
+from .common import (PRESET_CHOICES, hardware_model, lane_arguments, place_and_route_arguments, positive_float,
+                     scene_argument)
 from .verilog import full_argument
 
 NAME, HELP = "synth", "synthesise the scene's core for an ECP5: resources, Fmax, steps/s"
@@ -19,17 +17,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
     parser.add_argument("--device", default="ecp5-85k", help="ecp5-85k (default), ecp5-45k, ecp5-25k, ecp5-12k")
     parser.add_argument("--clock-mhz", type=positive_float, default=100.0, help="clock constraint (default 100 MHz)")
-    parser.add_argument("--router", choices=ROUTERS, default="router1",
-                        help="nextpnr's router (default router1, nextpnr's own; router2 gets through congested "
-                             "designs sooner)")
-    parser.add_argument("--seed", type=positive_int, default=1,
-                        help="nextpnr's placement seed (default 1); Fmax moves by a few MHz from seed to seed")
     parser.add_argument("--preset", default="auto", choices=PRESET_CHOICES,
                         help="number-format preset (default auto: the narrowest whose bit-true run stays within 1e-3 "
                              "of the object size of golden on the scene; narrow's products fit 18x18 multipliers)")
-    parser.add_argument("--block-rams", type=whole_number, default=None, metavar="N",
-                        help="the streaming core's DP16KD budget (default: all the device has); fewer moves more "
-                             "shallow copies into LUT RAM: block RAM, and the routing into it, traded for LUTs")
+    place_and_route_arguments(parser)
     full_argument(parser)
     parser.add_argument("--no-pnr", dest="pnr", action="store_false",
                         help="Yosys only: resources in minutes, no place and route and no Fmax")
@@ -39,12 +30,10 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from hw import emit
     from sim.runfile import check_output_dir, output_directory
-    from golden.errors import BadArgument
-    from sim.synth import block_ram_capacity, check_device, check_tools, synthesize
+    from sim.synth import check_block_rams, check_device, check_tools, synthesize
     out = check_output_dir(args.out)              # every argument before the range analysis and the tools
     check_device(args.device)
-    if args.block_rams is not None and args.block_rams > block_ram_capacity(args.device):
-        raise BadArgument(f"--block-rams {args.block_rams}: {args.device} has {block_ram_capacity(args.device)} DP16KD")
+    check_block_rams(args.block_rams, args.device)
     check_tools(args.pnr)
     bt = hardware_model(args)
     with output_directory(out) as tmp:             # whole or not at all
