@@ -241,6 +241,8 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
                                            progress=log is not None, router=router, seed=seed)
         fmax_mhz, source = res["fmax_mhz"], f"measured: nextpnr-ecp5 on {device} ({synth_dir})"
         row["resources"] = {k: res[k] for k in ("luts", "flip_flops", "mult18x18", "block_rams")}
+        row["place_and_route"] = {"router": router, "seed": seed,
+                                  "dp16kd_budget": block_ram_capacity(device) if block_rams is None else block_rams}
     else:
         source = "stated (--fmax-mhz)"
     row.update(fmax_mhz=fmax_mhz, fmax_source=source, steps_per_s=fmax_mhz * 1e6 / cycles,

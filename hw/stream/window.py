@@ -4,13 +4,13 @@ The ring holds Wg groups (W = Wg Q nodes, Wg a power of two). Virtual group v = 
 step k; the index runs on across steps) lives in slot v mod Wg. The fill writes a whole group word
 (`fill`, one a cycle) into every copy, through registers of each copy's own (FILL_FANOUT = 1 cycle, kept
 apart in Yosys: one register feeding every copy across the die was a long route at 1e4 elements), so a
-fill presented in cycle t is written at the end of cycle t + 1; each read port reads its own copy. A node read port (`reads`)
-presents a slot and the node's bank (n % Q) and gets that node's word NODE_READ_LATENCY = 3 cycles
-later (the block RAM's 2, then the bank's multiplexer into a register: nextpnr put 4.8 ns of routing
-between a window copy and the multiplexer, which fed an element lane's first subtraction in the same
-cycle); a group read port (`groups`: the node lanes, which retire a whole group) gets the group word
-LATENCY = 2 cycles later. The schedule
-guarantees that every read sees the group its slot holds for that read's step (hw/stream/schedule.py).
+fill presented in cycle t is written at the end of cycle t + 1; each read port reads its own copy. A
+node read port (`reads`) presents a slot and the node's bank (n % Q) and gets that node's word
+NODE_READ_LATENCY = 3 cycles later (the block RAM's 2, then the bank's multiplexer into a register:
+nextpnr put 4.8 ns of routing between a window copy and the multiplexer, which fed an element lane's
+first subtraction in the same cycle); a group read port (`groups`: the node lanes, which retire a whole
+group) gets the group word LATENCY = 2 cycles later. The schedule guarantees that every read sees the
+group its slot holds for that read's step (hw/stream/schedule.py).
 The copies listed in `lut_copies` are LUT RAM (`BlockRam(distributed=True)`, the same latency).
 """
 from __future__ import annotations
@@ -75,4 +75,3 @@ class NodeWindow(wiring.Component):
             else:
                 m.d.comb += port.data.eq(ring.r_data)
         return m
-
