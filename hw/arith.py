@@ -223,7 +223,7 @@ class FloatArith(ArrayArith):
     def _rec(self, q, x):
         x = np.asarray(x, float)
         if x.size:
-            m = float(np.max(np.abs(x)))
+            m = float(np.abs(x).max())          # the method: np.max's Python wrapper cost a third more
             if m > self.peak[q]:
                 self.peak[q] = m
         return V(x, q)

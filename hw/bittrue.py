@@ -9,9 +9,14 @@ same step in float64 (the range analysis' run).
 """
 from __future__ import annotations
 
-import numpy as np
-
+import copy
+import hashlib
 import json
+import os
+import pickle
+from pathlib import Path
+
+import numpy as np
 
 from golden.errors import BadArgument, SimulationDiverged
 from golden.model import Stepper
@@ -43,10 +48,51 @@ def float_state(system: System, units: HardwareUnits, x, v, a, step_no=0, probe=
                    np.asarray(a, float).copy(), step_no, hp)
 
 
+RANGE_STORE: Path | None = None
+"""A directory where scene_ranges keeps its results for other processes (None: this process only). The test
+suite points it at its session's temporary directory: a range analysis depends on the datapath's code as
+well as on the scene, and the key holds only the scene, so a store must not outlive the code."""
+_RANGES_KEPT = 64          # range analyses remembered in this process (a few numbers per quantity each)
+_ranges_memo: dict[str, tuple] = {}
+
+
 def scene_ranges(system: System, steps: int | None = None):
-    """range_analysis of a scene: (peaks, increments), shared by the bit-true models of every preset."""
+    """range_analysis of a scene: (peaks, increments), shared by the bit-true models of every preset.
+
+    Computed once per scene content and step count (a run of the float datapath over the whole scene,
+    the slow part of building a bit-true model), then remembered (Params and HardwareUnits are functions
+    of the system)."""
+    steps = system.n_steps if steps is None else steps
+    key = hashlib.sha256(pickle.dumps((system, steps))).hexdigest()[:24]
+    if key not in _ranges_memo:
+        _ranges_memo[key] = _stored(key, lambda: _analyse(system, steps))
+        while len(_ranges_memo) > _RANGES_KEPT:
+            del _ranges_memo[next(iter(_ranges_memo))]
+    return copy.deepcopy(_ranges_memo[key])
+
+
+def _analyse(system: System, steps: int):
     units = HardwareUnits.of(system)
     return range_analysis(system, Params.of(system, units), units, steps)
+
+
+def _stored(key: str, compute):
+    """compute(), or its result from RANGE_STORE (one process computes it while the others wait)."""
+    if RANGE_STORE is None:
+        return compute()
+    import fcntl
+    store = Path(RANGE_STORE)
+    store.mkdir(parents=True, exist_ok=True)
+    path = store / f"{key}.pickle"
+    with open(store / f"{key}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if path.exists():
+            return pickle.loads(path.read_bytes())
+        result = compute()
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_bytes(pickle.dumps(result))
+        os.replace(tmp, path)
+        return result
 
 
 def range_analysis(system: System, params: Params, units: HardwareUnits, steps: int | None = None):
@@ -185,7 +231,7 @@ class BitTrue(Stepper):
         self.units = HardwareUnits.of(system)
         self.params = Params.of(system, self.units)
         if formats is None:
-            peaks, increments = ranges or range_analysis(system, self.params, self.units, range_steps)
+            peaks, increments = ranges or scene_ranges(system, range_steps)
         try:
             if formats is None:
                 formats = derive(peaks, FORMAT_PRESETS[preset], {**system.formats, **(overrides or {})}, increments)

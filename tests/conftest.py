@@ -3,8 +3,33 @@ the slow part of building a bit-true model, and several test files need the same
 from __future__ import annotations
 
 import functools
+import shutil
+import tempfile
+from pathlib import Path
+
+import pytest
 
 from golden.scene import load_scene
+
+
+def pytest_configure(config):
+    """One store of range analyses for the session, shared by its xdist workers (hw/bittrue.py RANGE_STORE):
+    a scene's analysis runs once, not once per worker and preset."""
+    import hw.bittrue
+    worker = getattr(config, "workerinput", None)
+    if worker is None:
+        config.rheo_range_store = tempfile.mkdtemp(prefix="rheo-ranges-")
+    hw.bittrue.RANGE_STORE = Path(worker["rheo_range_store"] if worker else config.rheo_range_store)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node):          # pytest-xdist, in the controller: hand the store to a worker
+    node.workerinput["rheo_range_store"] = node.config.rheo_range_store
+
+
+def pytest_unconfigure(config):
+    if getattr(config, "workerinput", None) is None:
+        shutil.rmtree(config.rheo_range_store, ignore_errors=True)
 
 
 @functools.lru_cache(maxsize=None)
@@ -14,7 +39,8 @@ def scene_system(name: str):
 
 @functools.lru_cache(maxsize=None)
 def formats(name: str, preset: str):
-    """The formats `rheo simulate --backend fixed` derives for a built-in scene (full range analysis)."""
+    """The formats `rheo simulate --backend fixed` derives for a built-in scene (full range analysis, once a
+    session: hw/bittrue.py scene_ranges)."""
     from hw.bittrue import BitTrue
     return BitTrue(scene_system(name), preset).formats
 

@@ -211,3 +211,32 @@ def test_runaway_saturations_stop_the_run(tmp_path):
         run_fixed(hard, "narrow", steps=3000, every=100, bittrue=bt_hard)
     run, _, bt = run_fixed(gentle, "narrow", steps=3000, every=100, bittrue=BitTrue(gentle, "narrow", formats=bt_gentle.formats))
     assert bt.sat.total == 0
+
+
+def test_a_scenes_range_analysis_runs_once_per_content_and_is_shared_through_the_store(tmp_path, monkeypatch):
+    """hw/bittrue.py scene_ranges: the same scene content and step count reuse one analysis (in this process,
+    and from RANGE_STORE in another, here one whose memory is empty); another content or step count does not."""
+    import hw.bittrue as bittrue_module
+    runs = []
+    real = bittrue_module.range_analysis
+
+    def counted(system, params, units, steps):
+        runs.append((system.name, steps))
+        return real(system, params, units, steps)
+
+    monkeypatch.setattr(bittrue_module, "range_analysis", counted)
+    monkeypatch.setattr(bittrue_module, "RANGE_STORE", tmp_path / "store")
+    monkeypatch.setattr(bittrue_module, "_ranges_memo", {})
+    a = load_scene("press-2d-viscoelastic")
+    first = bittrue_module.scene_ranges(a, 40)
+    first[0]["x"] = -1.0                                     # a caller's copy: the kept result is not touched
+    again = bittrue_module.scene_ranges(load_scene("press-2d-viscoelastic"), 40)
+    assert again[0]["x"] > 0 and runs == [("press-2d-viscoelastic", 40)]
+    monkeypatch.setattr(bittrue_module, "_ranges_memo", {})  # another process: the store answers
+    assert bittrue_module.scene_ranges(a, 40) == again and len(runs) == 1
+    bittrue_module.scene_ranges(a, 41)
+    b = load_scene("press-2d-viscoelastic")
+    b.dt = b.dt / 2
+    bittrue_module.scene_ranges(b, 40)
+    assert runs == [("press-2d-viscoelastic", 40), ("press-2d-viscoelastic", 41), ("press-2d-viscoelastic", 40)]
+    assert len(list((tmp_path / "store").glob("*.pickle"))) == 3
