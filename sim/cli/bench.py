@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 
 from .common import (PRESET_CHOICES, UsageError, check_backend_fits, check_square_fits, lane_arguments, load_system,
-                     place_and_route_arguments, positive_float, positive_int)
+                     place_and_route_arguments, place_and_route_chosen, positive_float, positive_int)
 
 NAME, HELP = "bench", "measure steps/s and element-updates/s on generated meshes"
 BENCH_BACKENDS = ("golden", "cpu", "fixed", "fpga")
@@ -38,10 +38,6 @@ def add_arguments(parser) -> None:
                         help="--haptic: device samples timed one by one (default 10000)")
 
 
-def _place_and_route_asked(args) -> bool:
-    return args.router != "router1" or args.seed != 1 or args.block_rams is not None
-
-
 def run(args) -> int:
     from sim import bench
     if args.backend not in BENCH_BACKENDS:
@@ -54,10 +50,10 @@ def run(args) -> int:
         check_block_rams(args.block_rams, args.device)
         if args.fmax_mhz is None:
             check_tools(place_and_route=True)
-        elif _place_and_route_asked(args):
+        elif place_and_route_chosen(args):
             raise UsageError("--router, --seed and --block-rams choose how the core is placed and routed: "
                              "not with --fmax-mhz (no place and route)")
-    elif _place_and_route_asked(args):
+    elif place_and_route_chosen(args):
         raise UsageError("--router, --seed and --block-rams belong to --backend fpga")
     elif (any(v is not None for v in (args.preset, args.fmax_mhz, args.pair_lanes)) or args.lanes != 1
           or args.node_lanes != 1 or args.core != "auto"):

@@ -74,18 +74,27 @@ def lane_arguments(parser) -> None:
                              "auto: streaming unless the scene has collisions")
 
 
+PLACE_AND_ROUTE_DEFAULTS = {"router": "router1", "seed": 1, "block_rams": None}   # None: all the device has
+
+
 def place_and_route_arguments(parser, what: str = "") -> None:
     """nextpnr's router and seed and the streaming core's DP16KD budget (`rheo synth`, `rheo bench --backend
     fpga`); `what` prefixes the help (e.g. "fpga: ")."""
     from sim.synth import ROUTERS
-    parser.add_argument("--router", choices=ROUTERS, default="router1",
+    d = PLACE_AND_ROUTE_DEFAULTS
+    parser.add_argument("--router", choices=ROUTERS, default=d["router"],
                         help=f"{what}nextpnr's router (default router1, nextpnr's own; router2 gets through congested "
                              "designs sooner)")
-    parser.add_argument("--seed", type=positive_int, default=1,
+    parser.add_argument("--seed", type=positive_int, default=d["seed"],
                         help=f"{what}nextpnr's placement seed (default 1); Fmax moves by a few MHz from seed to seed")
-    parser.add_argument("--block-rams", type=whole_number, default=None, metavar="N",
+    parser.add_argument("--block-rams", type=whole_number, default=d["block_rams"], metavar="N",
                         help=f"{what}the streaming core's DP16KD budget (default: all the device has); fewer moves "
                              "more shallow copies into LUT RAM: block RAM, and the routing into it, traded for LUTs")
+
+
+def place_and_route_chosen(args) -> bool:
+    """Whether any option of place_and_route_arguments differs from its default."""
+    return any(getattr(args, k) != v for k, v in PLACE_AND_ROUTE_DEFAULTS.items())
 
 
 def load_system(ref: str):
