@@ -10,6 +10,7 @@ same step in float64 (the range analysis' run).
 from __future__ import annotations
 
 import copy
+import functools
 import hashlib
 import json
 import os
@@ -48,10 +49,10 @@ def float_state(system: System, units: HardwareUnits, x, v, a, step_no=0, probe=
                    np.asarray(a, float).copy(), step_no, hp)
 
 
-RANGE_STORE: Path | None = None
-"""A directory where scene_ranges keeps its results for other processes (None: this process only). The test
-suite points it at its session's temporary directory: a range analysis depends on the datapath's code as
-well as on the scene, and the key holds only the scene, so a store must not outlive the code."""
+RANGE_STORE_VARIABLE = "RHEO_RANGE_STORE"
+"""An environment variable naming a directory where scene_ranges keeps its results for other processes (the
+test suite sets it for its session, so that its workers and the commands they start share one analysis per
+scene). The key holds the scene and the code of golden/ and hw/, so a kept result never outlives its code."""
 _RANGES_KEPT = 64          # range analyses remembered in this process (a few numbers per quantity each)
 _ranges_memo: dict[str, tuple] = {}
 
@@ -63,7 +64,7 @@ def scene_ranges(system: System, steps: int | None = None):
     the slow part of building a bit-true model), then remembered (Params and HardwareUnits are functions
     of the system)."""
     steps = system.n_steps if steps is None else steps
-    key = hashlib.sha256(pickle.dumps((system, steps))).hexdigest()[:24]
+    key = hashlib.sha256(pickle.dumps((system, steps, _code_digest()))).hexdigest()[:24]
     if key not in _ranges_memo:
         _ranges_memo[key] = _stored(key, lambda: _analyse(system, steps))
         while len(_ranges_memo) > _RANGES_KEPT:
@@ -76,12 +77,23 @@ def _analyse(system: System, steps: int):
     return range_analysis(system, Params.of(system, units), units, steps)
 
 
+@functools.lru_cache(maxsize=None)
+def _code_digest() -> str:
+    """A digest of the code a range analysis runs (every module of golden/ and hw/)."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for path in sorted(p for d in ("golden", "hw") for p in (root / d).rglob("*.py")):
+        h.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes())
+    return h.hexdigest()
+
+
 def _stored(key: str, compute):
-    """compute(), or its result from RANGE_STORE (one process computes it while the others wait)."""
-    if RANGE_STORE is None:
+    """compute(), or its result from the directory RHEO_RANGE_STORE names (one process computes it while the
+    others wait)."""
+    if not os.environ.get(RANGE_STORE_VARIABLE):
         return compute()
     import fcntl
-    store = Path(RANGE_STORE)
+    store = Path(os.environ[RANGE_STORE_VARIABLE])
     store.mkdir(parents=True, exist_ok=True)
     path = store / f"{key}.pickle"
     with open(store / f"{key}.lock", "w") as lock:

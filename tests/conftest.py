@@ -3,9 +3,9 @@ the slow part of building a bit-true model, and several test files need the same
 from __future__ import annotations
 
 import functools
+import os
 import shutil
 import tempfile
-from pathlib import Path
 
 import pytest
 
@@ -13,13 +13,13 @@ from golden.scene import load_scene
 
 
 def pytest_configure(config):
-    """One store of range analyses for the session, shared by its xdist workers (hw/bittrue.py RANGE_STORE):
-    a scene's analysis runs once, not once per worker and preset."""
-    import hw.bittrue
+    """One store of range analyses for the session (hw/bittrue.py RHEO_RANGE_STORE), shared by its xdist
+    workers and the commands they start: a scene's analysis runs once, not once per process and preset."""
+    from hw.bittrue import RANGE_STORE_VARIABLE
     worker = getattr(config, "workerinput", None)
     if worker is None:
         config.rheo_range_store = tempfile.mkdtemp(prefix="rheo-ranges-")
-    hw.bittrue.RANGE_STORE = Path(worker["rheo_range_store"] if worker else config.rheo_range_store)
+    os.environ[RANGE_STORE_VARIABLE] = worker["rheo_range_store"] if worker else config.rheo_range_store
 
 
 @pytest.hookimpl(optionalhook=True)

@@ -215,7 +215,8 @@ def test_runaway_saturations_stop_the_run(tmp_path):
 
 def test_a_scenes_range_analysis_runs_once_per_content_and_is_shared_through_the_store(tmp_path, monkeypatch):
     """hw/bittrue.py scene_ranges: the same scene content and step count reuse one analysis (in this process,
-    and from RANGE_STORE in another, here one whose memory is empty); another content or step count does not."""
+    and from the RHEO_RANGE_STORE directory in another, here one whose memory is empty); another content,
+    step count or code does not."""
     import hw.bittrue as bittrue_module
     runs = []
     real = bittrue_module.range_analysis
@@ -225,7 +226,7 @@ def test_a_scenes_range_analysis_runs_once_per_content_and_is_shared_through_the
         return real(system, params, units, steps)
 
     monkeypatch.setattr(bittrue_module, "range_analysis", counted)
-    monkeypatch.setattr(bittrue_module, "RANGE_STORE", tmp_path / "store")
+    monkeypatch.setenv(bittrue_module.RANGE_STORE_VARIABLE, str(tmp_path / "store"))
     monkeypatch.setattr(bittrue_module, "_ranges_memo", {})
     a = load_scene("press-2d-viscoelastic")
     first = bittrue_module.scene_ranges(a, 40)
@@ -238,5 +239,9 @@ def test_a_scenes_range_analysis_runs_once_per_content_and_is_shared_through_the
     b = load_scene("press-2d-viscoelastic")
     b.dt = b.dt / 2
     bittrue_module.scene_ranges(b, 40)
-    assert runs == [("press-2d-viscoelastic", 40), ("press-2d-viscoelastic", 41), ("press-2d-viscoelastic", 40)]
-    assert len(list((tmp_path / "store").glob("*.pickle"))) == 3
+    monkeypatch.setattr(bittrue_module, "_ranges_memo", {})  # other code: nothing kept answers it
+    monkeypatch.setattr(bittrue_module, "_code_digest", lambda: "other code")
+    bittrue_module.scene_ranges(a, 40)
+    assert runs == [("press-2d-viscoelastic", 40), ("press-2d-viscoelastic", 41), ("press-2d-viscoelastic", 40),
+                    ("press-2d-viscoelastic", 40)]
+    assert len(list((tmp_path / "store").glob("*.pickle"))) == 4
