@@ -1,6 +1,7 @@
-"""The Amaranth core equals the bit-true model bit for bit: every built-in 2D scene and the 3D scenes
-without collisions (3D collision cores stream 30,000 pairs a step: tests/test_hdl.py runs them on Verilator),
-except the scenes with a probe (this core has no probe port: issue 16 item 3).
+"""The Amaranth core equals the bit-true model bit for bit: one built-in scene for each unit and mapping
+the phased core builds (REPRESENTATIVE; with RHEO_ALL_SCENES=1 every built-in 2D scene and the 3D scenes
+without collisions: 3D collision cores stream 30,000 pairs a step, tests/test_hdl.py runs them on
+Verilator), except the scenes with a probe (this core has no probe port: issue 16 item 3).
 
 The core runs in Amaranth's simulator behind its host interface (sim/hwsim.py); the bit-true model
 (hw/bittrue.py) steps the same scene with the same formats. Both start from the same mid-run state
@@ -9,6 +10,7 @@ read-back (x, u, a, the step counter and the saturation count) must be identical
 """
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -26,8 +28,22 @@ from conftest import bittrue, scene_system
 pytestmark = pytest.mark.hdl      # `make test-fast` leaves these out
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENES = [n for n in builtin_names() if (scene_system(n).collision is None or scene_system(n).dim == 2)
-          and scene_system(n).probe is None]      # the probe port is the streaming core's (issue 16 item 3)
+ALL_SCENES = [n for n in builtin_names() if (scene_system(n).collision is None or scene_system(n).dim == 2)
+              and scene_system(n).probe is None]      # the probe port is the streaming core's (issue 16 item 3)
+# One scene for each unit and mapping the phased core builds (Amaranth's simulator runs 40 to 300 cycles/s:
+# the whole list took 20 minutes of a core in a 2-worker `make test`, so `make test` takes this set and RHEO_ALL_SCENES=1 all):
+REPRESENTATIVE = {
+    "gravity-2d-nonlinear": "topology pairs, floor, nonlinear damper table, gravity",
+    "friction-2d-mu03": "2D collision pairs with friction (1/sqrt unit)",
+    "multi-2d": "several objects: elements, nodes and collision pairs across objects",
+    "press-2d-plastic": "plastic elements: a stops at its clamp bounds",
+    "press-2d-viscoelastic": "fixed-a elements (c1 a_max), constant damper",
+    "rigid-on-rheo-2d": "a rigid body on a rheological one",
+    "table-push-2d-gravity": "external loads and a friction floor",
+    "press-3d-rheological": "3D elements",
+    "gravity-3d-nonlinear": "3D topology pairs and floor",
+}       # press-2d-rheological at narrow and medium: test_core_equals_bittrue_with_narrow_words
+SCENES = ALL_SCENES if os.environ.get("RHEO_ALL_SCENES") else [n for n in ALL_SCENES if n in REPRESENTATIVE]
 
 
 def start_step(system):
@@ -65,6 +81,10 @@ def compare(bt, hw: AmaranthCore, start: int, steps: int, every: int):
         assert (why := state_difference(st, X, U, A, step)) is None, f"at step {st.step}: {why}"
         assert sat == bt.sat.total, (sat, dict(bt.sat))
     return st, cycles
+
+
+def test_the_representative_scenes_are_built_in_and_run_on_this_core():
+    assert set(REPRESENTATIVE) <= set(ALL_SCENES), set(REPRESENTATIVE) - set(ALL_SCENES)
 
 
 @pytest.mark.parametrize("name", SCENES)
