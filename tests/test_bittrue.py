@@ -15,7 +15,7 @@ from helpers import run_fixed
 from hw.fixed import SQ, UQ, Saturations, add, mul, shift_round
 from hw.formats import FormatError, check_scene_formats
 
-from conftest import bittrue as cached_bittrue, scene_system
+from conftest import bittrue as cached_bittrue, scene_system, sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -51,8 +51,21 @@ def test_formats_of_mixed_binary_points_add_exactly():
 SENSITIVITY_FACTOR = 3.0       # a sensitive scene's bit-true error may reach 3x its sensitivity floor
 
 
+# One scene per family (element law, collisions and friction, probe, dimension): the whole list is about
+# 40 minutes of a core in a 2-worker `make test`, so it takes these and RHEO_ALL_SCENES=1 all
+BUDGET_SCENES = {
+    "fold-2d": "topology pairs folding", "multi-2d": "several colliding objects",
+    "friction-2d-mu03": "2D collisions with friction", "friction-3d-mu03": "3D collisions with friction",
+    "gravity-2d-nonlinear": "nonlinear springs under gravity", "gravity-3d-nonlinear": "the same in 3D",
+    "press-2d-plastic": "plastic elements", "press-2d-viscoelastic": "viscoelastic elements",
+    "press-2d-rheological": "rheological elements", "press-3d-rheological": "3D rheological elements",
+    "poke-2d-rheological": "the haptic probe", "poke-3d-rheological": "the probe in 3D",
+    "rigid-on-rheo-2d": "a rigid body on a soft one", "table-push-2d-gravity": "loads and a friction floor",
+}
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("name", [n for n in builtin_names() if n != "creep-1d"])
+@pytest.mark.parametrize("name", sweep([n for n in builtin_names() if n != "creep-1d"], BUDGET_SCENES))
 def test_wide_preset_within_budget_of_golden_over_the_whole_scene(name):
     """Max position error of the wide preset <= 1e-4 of the object size, every frame, full duration.
 

@@ -10,7 +10,6 @@ read-back (x, u, a, the step counter and the saturation count) must be identical
 """
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -23,7 +22,7 @@ from hw.core import CoreConfig
 from hw.datapath import state_difference
 from sim.hwsim import AmaranthCore
 
-from conftest import bittrue, scene_system
+from conftest import bittrue, scene_system, sweep
 
 pytestmark = pytest.mark.hdl      # `make test-fast` leaves these out
 
@@ -43,7 +42,7 @@ REPRESENTATIVE = {
     "press-3d-rheological": "3D elements",
     "gravity-3d-nonlinear": "3D topology pairs and floor",
 }       # press-2d-rheological at narrow and medium: test_core_equals_bittrue_with_narrow_words
-SCENES = ALL_SCENES if os.environ.get("RHEO_ALL_SCENES") else [n for n in ALL_SCENES if n in REPRESENTATIVE]
+SCENES = sweep(ALL_SCENES, REPRESENTATIVE)
 
 
 def start_step(system):
@@ -81,10 +80,6 @@ def compare(bt, hw: AmaranthCore, start: int, steps: int, every: int):
         assert (why := state_difference(st, X, U, A, step)) is None, f"at step {st.step}: {why}"
         assert sat == bt.sat.total, (sat, dict(bt.sat))
     return st, cycles
-
-
-def test_the_representative_scenes_are_built_in_and_run_on_this_core():
-    assert set(REPRESENTATIVE) <= set(ALL_SCENES), set(REPRESENTATIVE) - set(ALL_SCENES)
 
 
 @pytest.mark.parametrize("name", SCENES)
