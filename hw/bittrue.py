@@ -102,8 +102,11 @@ def _stored(key: str, compute):
             return pickle.loads(path.read_bytes())
         result = compute()
         tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_bytes(pickle.dumps(result))
-        os.replace(tmp, path)
+        try:
+            tmp.write_bytes(pickle.dumps(result))
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)      # an interrupted write leaves nothing behind
         return result
 
 
