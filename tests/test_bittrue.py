@@ -54,14 +54,15 @@ SENSITIVITY_FACTOR = 3.0       # a sensitive scene's bit-true error may reach 3x
 # One scene per family (element law, collisions and friction, probe, dimension): the whole list is about
 # 40 minutes of a core in a 2-worker `make test`, so it takes these and RHEO_ALL_SCENES=1 all
 BUDGET_SCENES = {
-    "fold-2d": "topology pairs folding", "multi-2d": "several colliding objects",
-    "friction-2d-mu03": "2D collisions with friction", "friction-3d-mu03": "3D collisions with friction",
-    "gravity-2d-nonlinear": "nonlinear springs under gravity", "gravity-3d-nonlinear": "the same in 3D",
+    "fold-2d": "topology pairs folding into self-contact",
+    "multi-2d": "several objects colliding in 2D, with friction",
+    "friction-3d-mu03": "3D collisions with friction",
+    "gravity-3d-nonlinear": "the nonlinear damper under gravity (3D)",
     "press-2d-plastic": "plastic elements", "press-2d-viscoelastic": "viscoelastic elements",
-    "press-2d-rheological": "rheological elements", "press-3d-rheological": "3D rheological elements",
-    "poke-2d-rheological": "the haptic probe", "poke-3d-rheological": "the probe in 3D",
+    "press-3d-rheological": "rheological elements (3D)",
+    "poke-3d-rheological": "the haptic probe (3D)",
     "rigid-on-rheo-2d": "a rigid body on a soft one", "table-push-2d-gravity": "loads and a friction floor",
-}
+}       # their 2D or 3D counterparts and the parameter variants with RHEO_ALL_SCENES=1
 
 
 @pytest.mark.slow

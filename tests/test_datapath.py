@@ -15,6 +15,8 @@ from hw.bittrue import float_state
 from hw.datapath import Params, step
 from hw.units import HardwareUnits
 
+from conftest import sweep
+
 STEPS = 1500
 
 
@@ -103,8 +105,16 @@ def _collision_scenes():
     return [n for n in builtin_names() if load_scene(n).collision is not None]
 
 
+COLLISION_REPRESENTATIVE = {          # the frictionless variants and rigid-on-rheo-2d with RHEO_ALL_SCENES=1
+    "friction-2d-mu03": "2D vertex-edge contacts with friction",
+    "friction-3d-mu03": "3D vertex-facet contacts with friction",
+    "multi-2d": "contacts between several objects",
+    "fold-2d": "self-contact",
+}
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("name", _collision_scenes())
+@pytest.mark.parametrize("name", sweep(_collision_scenes(), COLLISION_REPRESENTATIVE))
 def test_float_datapath_equals_golden_step_by_step_with_collisions(name, monkeypatch):
     """Collision scenes are sensitive: contact gates (within the threshold, foot on the facet) switch
     forces on and off, so a 1e-16 difference can decide the step at which a contact starts, and

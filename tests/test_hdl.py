@@ -143,7 +143,7 @@ def test_bench_fpga_measures_cycles_per_step_in_simulation():
     """`rheo bench --backend fpga`: cycles per step from the simulated core's CYCLES register (equal to the
     schedule), modelled steps/s at the stated clock, and the golden model measured on the same mesh."""
     import json
-    r = subprocess.run([sys.executable, "-m", "sim.cli", "bench", "--backend", "fpga", "--sizes", "300",
+    r = subprocess.run([sys.executable, "-m", "sim.cli", "bench", "--backend", "fpga", "--sizes", "100",
                         "--lanes", "2", "--node-lanes", "2", "--fmax-mhz", "50", "--seconds", "0.2", "--json",
                         "--core", "phased"],
                        cwd=ROOT, capture_output=True, text=True, timeout=1800)
