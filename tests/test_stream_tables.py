@@ -58,3 +58,29 @@ def test_two_units_share_one_table(ram):
         bad = np.nonzero(hw != want)[0]
         assert bad.size == 0, f"{ram} unit {k}: {bad.size} outputs differ, first at input {bad[:3].tolist()}"
     assert len(dut.pair.roms) == 1                            # one copy for both units
+
+
+@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
+@pytest.mark.parametrize("scene,preset,P,Q,Pp", [("press-2d-rheological", "medium", 2, 2, None),
+                                                  ("poke-2d-rheological", "medium", 1, 2, 2)])
+def test_a_cores_own_unit_memories_are_those_of_its_hierarchy(scene, preset, P, Q, Pp):
+    """StreamCore.own_unit_memories (the manifest's list and block_rams()'s count, from the lanes' dry runs)
+    equals a walk over the elaborated core: every memory inside a 1/sqrt or inverse unit that is not a shared
+    table; the probe scene's node lanes have their own 1/sqrt ROM."""
+    from amaranth.hdl import Fragment, Shape
+    from amaranth.lib.memory import Memory
+    from conftest import bittrue
+    from hw.stream import build_core
+    core = build_core(bittrue(scene, preset), P, Q, "stream", pair_lanes=Pp)
+    walked = []
+
+    def walk(frag, path):
+        for n, (sub, name, _) in enumerate(frag.subfragments):
+            where = f"{path}.{name if name is not None else f'U${n}'}" if path else str(name)
+            for mem in sub.origins or ():
+                if isinstance(mem, Memory) and ("rsqrt" in where or "inverse" in where) and ".shared_" not in where:
+                    walked.append({"name": where, "depth": mem.depth, "width": Shape.cast(mem.shape).width})
+            walk(sub, where)
+    walk(Fragment.get(core, None), "")
+    assert walked and core.own_unit_memories() == walked
+    assert any(m["name"].startswith("nd") for m in walked) == (scene.startswith("poke"))

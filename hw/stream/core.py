@@ -117,11 +117,22 @@ class StreamCore(wiring.Component):
     def block_rams(self) -> int:
         """DP16KD of the "ecp5" variant: the BlockRams of `memories()` and the lanes' own function-unit
         ROMs (those a lane does not share, hw/stream/tables.py), which Yosys infers."""
-        from .tables import shares
-        own = [mem for lane in self.elements + self.pairs for mem in lane.unit_memories()
-               if lane.tables is None or not shares(mem["width"], mem["depth"])]
+        own = self.own_unit_memories()
         units = sum(rows * cols for *_, rows, cols in (plan_blocks(mem["width"], mem["depth"]) for mem in own))
         return sum(mem["dp16kd"] for mem in self.memories()) + units
+
+    def own_unit_memories(self) -> list[dict]:
+        """The lanes' function-unit ROMs (1/sqrt seeds, damper tables) that no other lane shares: inferred,
+        not BlockRams (hw/stream/tables.py). Names as in the Verilog ("el0.el0_inverse_phi_80.rom_0")."""
+        from .tables import shares
+        out = []
+        for lane in self.elements + self.pairs + self.nodes:
+            name = lane.prefix
+            for mem in lane.unit_memories():
+                if getattr(lane, "tables", None) is None or not shares(mem["width"], mem["depth"]):
+                    unit = mem["name"].replace(f"dry_{name[:2]}", name, 1)
+                    out.append({"name": f"{name}.{unit}", "depth": mem["depth"], "width": mem["width"]})
+        return out
 
     def _fit_block_ram(self, budget: int | None) -> list[str]:
         """Move shallow copies into LUT RAM until block_rams() <= budget (module docstring); their names."""

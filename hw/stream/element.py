@@ -76,8 +76,13 @@ class ElementLane(wiring.Component):
         self.tables = None               # the function units' ROMs: the lane's own, or a TablePair side
 
     def rams(self) -> list[dict]:
-        return ([ram_record(f"el{self.lane}_a", self.a_bits, self.depth)] + self.rom.records(f"el{self.lane}_rom")
-                + table_records(self, f"el{self.lane}_tables"))
+        return ([ram_record(f"{self.prefix}_a", self.a_bits, self.depth)] + self.rom.records(f"{self.prefix}_rom")
+                + table_records(self, f"{self.prefix}_tables"))
+
+    @property
+    def prefix(self) -> str:
+        """The lane's name in the Verilog and the manifest ("el0")."""
+        return f"el{self.lane}"
 
     def unit_memories(self) -> list[dict]:
         """The function units' memories (name, depth, width), from the dry run."""
@@ -87,7 +92,7 @@ class ElementLane(wiring.Component):
         """The lane's ROM (dictionary-encoded, hw/stream/lanerom.py): the window groups and banks of nodes
         i and j, whether i is the higher node, the first and last flags, the kernel's per-element
         parameters (from the dry run)."""
-        cfg, name = self.cfg, f"el{self.lane}"
+        cfg, name = self.cfg, self.prefix
         Q, Wg = cfg.node_lanes, cfg.schedule.window_groups
         rom = LaneRom(self.depth, cfg.ram, dictionary=True)
         ni, nj = cfg.order.ei[self.items], cfg.order.ej[self.items]
@@ -115,7 +120,7 @@ class ElementLane(wiring.Component):
         cfg, p, fmt = self.cfg, self.cfg.params, self.cfg.formats
         Q, Wg, word = cfg.node_lanes, cfg.schedule.window_groups, cfg.word
         wb = bits_for(Wg)
-        name = f"el{self.lane}"
+        name = self.prefix
         slot = self.issue.slot[:self.pbits]
         valid0 = Signal(name=f"{name}_valid0")
         m.d.comb += valid0.eq(self.issue.valid & (self.issue.slot < len(self.items)))

@@ -3,34 +3,13 @@ DP16KD budget, the schedule, the saturation flags, the host interface with the r
 scene with a [probe], the probe port with its latency in cycles."""
 from __future__ import annotations
 
-from amaranth.hdl import Fragment, Shape
-from amaranth.lib.memory import Memory
-
-
-def unit_memories(core) -> list[dict]:
-    """Memories inside the function units (1/sqrt seed ROMs, damper tables): inferred, not BlockRams
-    (tables shared by two lanes are BlockRams, in the core's memories())."""
-    frag = Fragment.get(core, None)
-    out = []
-
-    def walk(f, path):
-        for n, (sub, name, _) in enumerate(f.subfragments):
-            where = f"{path}.{name if name is not None else f'U${n}'}" if path else str(name)
-            for mem in sub.origins or ():
-                if isinstance(mem, Memory) and ("rsqrt" in where or "inverse" in where) and ".shared_" not in where:
-                    out.append({"name": where, "depth": mem.depth, "width": Shape.cast(mem.shape).width})
-            walk(sub, where)
-    walk(frag, "")
-    return out
-
-
 def manifest(bt, core, specialisation, top: str) -> dict:
     cfg, sch = core.cfg, core.schedule
     feats = cfg.features()
     present = [{"unit": u, "what": what} for u, need, what in specialisation if need(feats)]
     absent = [{"unit": u, "what": what} for u, need, what in specialisation if not need(feats)]
     mems = core.memories()
-    units = unit_memories(core)
+    units = core.own_unit_memories()
     E, N, Pn = cfg.n_elements, cfg.n_nodes, cfg.n_pairs
     host = cfg.host_map.to_dict()
     host["node_order"] = "reverse Cuthill-McKee: node n is node_numbering[n] of the stream; slot = its % Q, word = its // Q"

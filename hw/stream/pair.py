@@ -53,7 +53,12 @@ class PairLane(wiring.Component):
         self.tables = None               # the function units' ROMs: the lane's own, or a TablePair side
 
     def rams(self) -> list[dict]:
-        return self.rom.records(f"pr{self.lane}_rom") + table_records(self, f"pr{self.lane}_tables")
+        return self.rom.records(f"{self.prefix}_rom") + table_records(self, f"{self.prefix}_tables")
+
+    @property
+    def prefix(self) -> str:
+        """The lane's name in the Verilog and the manifest ("pr0")."""
+        return f"pr{self.lane}"
 
     def unit_memories(self) -> list[dict]:
         """The function units' memories (name, depth, width), from the dry run."""
@@ -61,7 +66,7 @@ class PairLane(wiring.Component):
 
     def _rom(self) -> LaneRom:
         """Per role the window group, bank and first flag of its node; the kernel's per-pair parameters."""
-        cfg, name = self.cfg, f"pr{self.lane}"
+        cfg, name = self.cfg, self.prefix
         Q, Wg = cfg.node_lanes, cfg.schedule.window_groups
         rom = LaneRom(self.depth, cfg.ram, dictionary=True)
         for r in range(cfg.dim + 1):
@@ -79,7 +84,7 @@ class PairLane(wiring.Component):
         cfg, p, fmt = self.cfg, self.cfg.params, self.cfg.formats
         D, Wg, word = cfg.dim, cfg.schedule.window_groups, cfg.word
         wb = bits_for(Wg)
-        name = f"pr{self.lane}"
+        name = self.prefix
         slot = self.issue.slot[:self.pbits]
         valid0 = Signal(name=f"{name}_valid0")
         m.d.comb += valid0.eq(self.issue.valid & (self.issue.slot < len(self.items)))
