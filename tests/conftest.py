@@ -41,6 +41,17 @@ def sweep(candidates, representative: dict) -> list:
     return list(candidates) if os.environ.get("RHEO_ALL_SCENES") else [n for n in candidates if n in representative]
 
 
+@pytest.fixture(autouse=True)
+def fast_verilator_builds(monkeypatch, request):
+    """Verilator's C++ at -O0 for every test and the `rheo` commands they start: the builds of large cores
+    are most of an HDL test's time (minutes at -Os), the simulated runs short. A test marked
+    optimised_verilator keeps -Os: the 3D collision core built in 1 minute at -O0 but ran its 159,000 cycles
+    in 578 s (67 s at -Os, built in 7 minutes)."""
+    flags = os.environ.get("MAKEFLAGS", "")
+    if "OPT_FAST" not in flags and request.node.get_closest_marker("optimised_verilator") is None:
+        monkeypatch.setenv("MAKEFLAGS", (flags + " OPT_FAST=-O0 OPT_SLOW=-O0 OPT_GLOBAL=-O0").strip())
+
+
 @functools.lru_cache(maxsize=None)
 def scene_system(name: str):
     return load_scene(name)

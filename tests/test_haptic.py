@@ -393,14 +393,12 @@ def test_api_refuses_a_stepper_that_takes_no_probe(monkeypatch):
 
 @pytest.mark.hdl
 @pytest.mark.parametrize("backend", ["amaranth", "verilator"])
-def test_api_core_backends_are_the_fixed_backend_bit_for_bit(backend, monkeypatch):
+def test_api_core_backends_are_the_fixed_backend_bit_for_bit(backend):
     """connect(scene, "amaranth" | "verilator"): each sample through the streaming core's probe port
     (Amaranth's simulator, or the emitted Verilog in a cocotb session); the force words, contacts and the frame
     at the end equal the fixed backend's, each sample's latency the manifest's (tests/scenes/poke-tiny.toml:
     a few cycles a step). The same cocotb session on Icarus: test_haptic_cli_on_icarus_writes_the_fixed_backends_run."""
     from hw.bittrue import BitTrue
-    if "OPT_FAST" not in os.environ.get("MAKEFLAGS", ""):            # Verilator: a quick build
-        monkeypatch.setenv("MAKEFLAGS", (os.environ.get("MAKEFLAGS", "") + " OPT_FAST=-O0 OPT_SLOW=-O0 OPT_GLOBAL=-O0").strip())
     system = load_scene(str(Path(__file__).resolve().parent / "scenes" / "poke-tiny.toml"))
     formats = BitTrue(system, "wide").formats
     path = system.probe.position - np.outer(np.arange(1, 7), [0.0, 3e-4])

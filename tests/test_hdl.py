@@ -48,12 +48,15 @@ def check(bt, simulator, start, frames, reset_after=0, lanes=1, node_lanes=1):
 
 
 @pytest.mark.parametrize("simulator", SIMULATORS)
-def test_scene_with_topology_floor_damper_and_gravity_is_bit_exact(simulator):
+def test_scene_with_topology_floor_damper_and_gravity_is_bit_exact_and_survives_a_reset(simulator):
+    """Reset 300 cycles into a run first: the core stops (idle, step 0, checked by the cocotb bench); reloaded,
+    it computes exactly again, in back-to-back runs of 3, 5 and 8 steps."""
     bt = bittrue("gravity-2d-nonlinear", "wide")
-    out = check(bt, simulator, start=3000, frames=[3, 5, 8])          # back-to-back runs of 3, 5, 8 steps
+    out = check(bt, simulator, start=3000, frames=[3, 5, 8], reset_after=300)
     assert out["wall_s"] > 0
 
 
+@pytest.mark.optimised_verilator
 def test_3d_collisions_with_friction_are_bit_exact_on_verilator():
     """A box resting on a pressed box: 30,524 vertex-triangle pairs a step, friction on the 1/sqrt unit."""
     bt = bittrue("friction-3d-mu03", "wide")
@@ -63,13 +66,6 @@ def test_3d_collisions_with_friction_are_bit_exact_on_verilator():
 def test_2d_collisions_with_friction_are_bit_exact_on_icarus():
     bt = bittrue("friction-2d-mu03", "wide")
     check(bt, "icarus", start=2000, frames=[1, 2])
-
-
-@pytest.mark.parametrize("simulator", SIMULATORS)
-def test_reset_in_the_middle_of_a_run(simulator):
-    """Reset while a run is under way: the core stops (idle, step 0); reloaded, it computes exactly again."""
-    bt = bittrue("gravity-2d-nonlinear", "wide")
-    check(bt, simulator, start=100, frames=[4], reset_after=300)
 
 
 def _scene(tmp_path, name, text):

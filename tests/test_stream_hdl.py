@@ -6,7 +6,7 @@ the model hw/stream/dp16kd.v) of a scene built to saturate, and seeded random me
 and Q in {1, 2}; on Verilator, a 2D scene (topology, floor, nonlinear damper) at narrow with a reset in
 the middle of a run and back-to-back runs, a 3D scene at medium, and `rheo bench --backend fpga`. With
 RHEO_STREAM_ALL=1 the Verilator test takes every built-in scene without collisions at narrow and medium
-(26 builds: an hour and more on this machine). Verilator builds use -O0 (they are most of the time).
+(26 builds: an hour and more on this machine). Verilator builds use -O0 (tests/conftest.py: they are most of the time).
 Also: Verilator's lint of the emitted Verilog, both RAM variants.
 """
 from __future__ import annotations
@@ -30,12 +30,6 @@ from conftest import bittrue, scene_system
 pytestmark = pytest.mark.hdl      # Amaranth's simulator or HDL simulators: `make test-fast` leaves these out
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture(autouse=True)
-def fast_verilator_builds(monkeypatch):
-    if "OPT_FAST" not in os.environ.get("MAKEFLAGS", ""):
-        monkeypatch.setenv("MAKEFLAGS", (os.environ.get("MAKEFLAGS", "") + " OPT_FAST=-O0 OPT_SLOW=-O0 OPT_GLOBAL=-O0").strip())
 
 
 def run_cycles(man, n):

@@ -117,19 +117,6 @@ def test_probe_port_streams_the_bit_true_forces():
     check_stream(bt, core, words, want, st, sat, seed=16)
 
 
-@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
-def test_probe_port_with_more_pair_lanes_than_element_lanes():
-    """P = 1 element lane, Pp = 3 pair lanes (the poke scenes' pairs outnumber their elements): a shorter
-    latency, the same forces."""
-    bt = probe_model(TINY)
-    words, want, st = expected(bt, trajectory(bt, 3, 7e-4))
-    assert want[-1][1] > 0
-    sat = bt.sat.total
-    core = build_core(bt, 1, 2, "stream", pair_lanes=3)
-    assert core.probe_latency < build_core(bt, 1, 2, "stream").probe_latency
-    check_stream(bt, core, words, want, st, sat, seed=5)
-
-
 def check_stream(bt, core, words, want, st, sat, seed):
     """stream_samples against the bit-true model's forces, end state and saturations; latency = manifest."""
     outs, lat, (X, U, A, step, hw_sat, _) = stream_samples(core, words, seed=seed)
@@ -170,12 +157,6 @@ def test_probe_scenes_go_to_the_streaming_core():
         resolve_core(params, "phased")
 
 
-@pytest.fixture
-def fast_verilator_builds(monkeypatch):
-    if "OPT_FAST" not in os.environ.get("MAKEFLAGS", ""):
-        monkeypatch.setenv("MAKEFLAGS", (os.environ.get("MAKEFLAGS", "") + " OPT_FAST=-O0 OPT_SLOW=-O0 OPT_GLOBAL=-O0").strip())
-
-
 def check_verilog(simulator, scene, samples, down, P, Q, seed, range_steps=None, Pp=None):
     """The emitted Verilog (`rheo verilog --core stream`) on a simulator through cocotb (sim/cocotb_core.py):
     the same proof as check_stream, the latency against the manifest's."""
@@ -206,20 +187,24 @@ def check_verilog(simulator, scene, samples, down, P, Q, seed, range_steps=None,
 
 
 @pytest.mark.hdl
-def test_probe_port_verilog_on_verilator(fast_verilator_builds):
+def test_probe_port_verilog_on_verilator():
     """Icarus runs the same cocotb bench in test_probe_port_verilog_with_pair_lanes_apart_on_icarus."""
     check_verilog("verilator", TINY, 7, 3e-4, 2, 2, seed=7)
 
 
 @pytest.mark.hdl
+@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
 def test_probe_port_verilog_with_pair_lanes_apart_on_icarus():
-    """Pp = 3 pair lanes beside P = 1 element lane, as `rheo synth poke-... --pair-lanes`."""
+    """Pp = 3 pair lanes beside P = 1 element lane, as `rheo synth poke-... --pair-lanes` (the poke scenes'
+    pairs outnumber their elements): a shorter latency than with one pair lane, the same forces."""
+    bt = probe_model(TINY)
+    assert build_core(bt, 1, 2, "stream", pair_lanes=3).probe_latency < build_core(bt, 1, 2, "stream").probe_latency
     check_verilog("icarus", TINY, 4, 5e-4, 1, 2, seed=11, Pp=3)
 
 
 @pytest.mark.hdl
 @pytest.mark.skipif(not os.environ.get("RHEO_STREAM_ALL"), reason="5 minutes on Verilator: RHEO_STREAM_ALL=1")
-def test_probe_port_verilog_builtin_poke_scene(fast_verilator_builds):
+def test_probe_port_verilog_builtin_poke_scene():
     """The built-in poke-2d-viscoelastic (153 nodes, k = 10, P = Q = 2: 3,988 cycles a sample) on Verilator:
     12 samples 0.125 mm apart (4x the design poke's speed, formats of its first 600 steps): 1 mm of air,
     then contact. With RHEO_STREAM_ALL=1 (as tests/test_stream_hdl.py's long set): about 5 minutes."""
@@ -251,7 +236,7 @@ def test_probe_scene_verilog_has_the_port_and_passes_verilator_lint(tmp_path):
 
 @pytest.mark.hdl
 @pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
-def test_bench_fpga_states_the_probe_ports_latency_and_sample_rate(fast_verilator_builds):
+def test_bench_fpga_states_the_probe_ports_latency_and_sample_rate():
     """`rheo bench --backend fpga --scene` of a probe scene: samples through the port on Verilator, the
     measured latency = the manifest's, in microseconds at Fmax, and the device samples per second."""
     import json
