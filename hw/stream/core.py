@@ -129,7 +129,7 @@ class StreamCore(wiring.Component):
         for lane in self.elements + self.pairs + self.nodes:
             name = lane.prefix
             for mem in lane.unit_memories():
-                if getattr(lane, "tables", None) is None or not shares(mem["width"], mem["depth"]):
+                if lane.tables is None or not shares(mem["width"], mem["depth"]):
                     unit = mem["name"].replace(f"dry_{name[:2]}", name, 1)
                     out.append({"name": f"{name}.{unit}", "depth": mem["depth"], "width": mem["width"]})
         return out

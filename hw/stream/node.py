@@ -47,6 +47,7 @@ def RetireSignature(groups: int):
 class NodeLane(wiring.Component):
     def __init__(self, cfg, q: int):
         self.cfg, self.q = cfg, q
+        self.tables = None               # node lanes share no function-unit ROM (hw/stream/tables.py)
         sch = cfg.schedule
         self.groups = sch.groups
         self.stage = cfg.node_dry.stage
