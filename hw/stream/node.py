@@ -73,7 +73,6 @@ class NodeLane(wiring.Component):
                             "probe_f": Out(D * fmt["pfe"].width)})
         super().__init__(members)
 
-
     @property
     def prefix(self) -> str:
         """The lane's name in the Verilog and the manifest ("nd0")."""
@@ -82,6 +81,7 @@ class NodeLane(wiring.Component):
     def unit_memories(self) -> list[dict]:
         """The function units' memories (the probe's 1/sqrt seeds), from the dry run."""
         return self.cfg.node_dry.ar.memories
+
     def nodes(self) -> np.ndarray:
         """The new numbers of this lane's nodes, by group (-1: none, past the last node)."""
         n = np.arange(self.groups) * self.cfg.node_lanes + self.q
