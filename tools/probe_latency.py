@@ -44,7 +44,8 @@ def main(argv) -> int:
         path = Path(tmp) / f"{scene}-x{factor:g}.toml"
         path.write_text(refined(scene, factor))
         big = load_scene(str(path))
-    for name, system in ((scene, small), (f"{scene} x{factor:g}", big)):
+    runs = [(scene, small)] + ([(f"{scene} x{factor:g}", big)] if factor != 1 else [])
+    for name, system in runs:
         try:
             cfg = StreamConfig.of(BitTrue(system, preset, formats=formats), P, Q, pair_lanes=Pp)
         except (RheoError, ValueError) as exc:
