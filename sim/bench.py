@@ -163,7 +163,7 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
                simulator: str = "verilator", steps: int = 2, fmax_mhz: float | None = None,
                device: str = "ecp5-85k", min_seconds: float = 1.0, range_steps: int | None = None,
                log=None, core: str = "auto", pair_lanes: int | None = None, router: str = "router1", seed: int = 1,
-               block_rams: int | None = None) -> dict:
+               block_rams: int | None = None, synth: str | None = None) -> dict:
     """Modelled FPGA throughput of `system`'s specialised core and the golden model's measured throughput.
 
     The preset ("auto": the narrowest within 1e-3 of the object size of golden, sim.backends.narrowest_preset)
@@ -173,7 +173,8 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
     its prologue and epilogue), from the initial state; each read-back must equal the bit-true model's.
     With `fmax_mhz` None the core is placed and routed for `device` (once per Verilog, router and seed, cached
     in build/synth/; the streaming core with its DP16KD instances, fitted to `block_rams` DP16KD, default
-    all the device has).
+    all the device has); with `synth` (a `rheo synth` output directory) its Fmax is taken instead, once its
+    Verilog is shown to be byte for byte this core's, emitted for synthesis (checked before the simulation).
     A scene with a [probe] also streams PROBE_SAMPLES device samples through the probe port (state checked
     after them); the row adds the port's latency (the manifest's cycles, equal to the measured ones) in
     microseconds and the device samples per second at Fmax (`probe_rates`).
@@ -182,22 +183,33 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
     from hw.datapath import state_difference
     from hw.stream import check_pair_lanes, resolve_core
     from .hdlsim import emit_core, run_job
-    from .synth import block_ram_capacity, synthesize_cached
+    from .synth import block_ram_capacity, read_placed, same_verilog, synthesize_cached
     from .backends import narrowest_preset, preset_error
     say = log or (lambda m: None)
     check_pair_lanes(resolve_core(system, core), pair_lanes)   # a scene no core takes: refused before any run
-    if preset == "auto":
+    placed = None
+    if synth is not None:                      # rheo synth's place and route: its Fmax, once its Verilog is ours
+        placed, placed_man = read_placed(synth)
+        device, block_rams = placed["device"], placed_man.get("block_ram_fit", {}).get("dp16kd_budget")
+        _check_placed_core(synth, placed_man, system, preset, lanes, node_lanes, pair_lanes)
+    preset_given = preset != "auto"
+    if not preset_given:
         say(f"{system.name}: choosing the preset (bit-true runs against golden over {system.n_steps} steps)")
         preset, error, chosen = narrowest_preset(system, log=say)
         say(chosen)
-    else:
-        error, note = preset_error(system, preset)
-        say(f"preset {preset}: " + (f"{error:.1e} of the object size against golden {note}" if error is not None else note))
+    else:                                # its error against golden is measured after the core's run
         chosen = f"preset {preset}: chosen (--preset)"
     say(f"{system.name}: formats (preset {preset})")
     bt = BitTrue(system, preset, range_steps=range_steps)
     kind = resolve_core(bt.params, core)
     core_dir, man, drv = emit_core(bt, lanes, node_lanes, core=kind, pair_lanes=pair_lanes)
+    synth_dir = core_dir
+    if fmax_mhz is None and kind == "stream":      # synthesis takes the DP16KD instances
+        # fit the device's block RAM, or the budget asked (LUT RAM copies, hw/stream/core.py)
+        synth_dir, _, _ = emit_core(bt, lanes, node_lanes, core=kind, ram="ecp5", pair_lanes=pair_lanes,
+                                    dp16kd_budget=block_ram_capacity(device) if block_rams is None else block_rams)
+    if placed is not None:
+        same_verilog(synth, placed_man, synth_dir / f"{man['top']}.v")
     steps = max(2, steps)
     say(f"{simulator}: runs of 1 and {steps} steps of the {kind} core in {core_dir}")
     st = bt.initial_state()
@@ -222,6 +234,9 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
             raise RuntimeError(f"{simulator}: the core's state after {st.step} steps differs from the bit-true "
                                f"model: {why}")
     cycles = (out["cycles"][1] - out["cycles"][0]) / (steps - 1)
+    if preset_given:
+        error, note = preset_error(system, preset)
+        say(f"preset {preset}: " + (f"{error:.1e} of the object size against golden {note}" if error is not None else note))
     row = dict(backend="fpga", scene=system.name, elements=system.n_elements, nodes=system.n_nodes, preset=preset,
                preset_why=chosen, error_vs_golden=error, error_steps=system.n_steps,
                lanes=lanes, node_lanes=node_lanes, pair_lanes=man["lanes"]["pair_lanes"], core=kind,
@@ -231,15 +246,15 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
                simulator_cycles_per_s=(sum(out["cycles"]) + sum(out.get("latency", []))) / max(out["wall_s"], 1e-9),
                core_dir=str(core_dir))
     if fmax_mhz is None:
-        say(f"place and route for {device} (Yosys + nextpnr, once per Verilog; tens of minutes for large cores)")
-        synth_dir = core_dir
-        if kind == "stream":                          # synthesis takes the DP16KD instances
-            # fit the device's block RAM, or the budget asked (LUT RAM copies, hw/stream/core.py)
-            synth_dir, _, _ = emit_core(bt, lanes, node_lanes, core=kind, ram="ecp5", pair_lanes=pair_lanes,
-                                        dp16kd_budget=block_ram_capacity(device) if block_rams is None else block_rams)
-        res, synth_dir = synthesize_cached(synth_dir / f"{man['top']}.v", man["top"], device=device,
-                                           progress=log is not None, router=router, seed=seed)
-        fmax_mhz, source = res["fmax_mhz"], f"measured: nextpnr-ecp5 on {device} ({synth_dir})"
+        if placed is not None:
+            res, router, seed = placed, placed.get("router", "router1"), placed.get("seed", 1)
+            source = f"measured: rheo synth's nextpnr-ecp5 on {device} ({synth}: the same Verilog)"
+        else:
+            say(f"place and route for {device} (Yosys + nextpnr, once per Verilog; tens of minutes for large cores)")
+            res, placed_dir = synthesize_cached(synth_dir / f"{man['top']}.v", man["top"], device=device,
+                                                progress=log is not None, router=router, seed=seed)
+            source = f"measured: nextpnr-ecp5 on {device} ({placed_dir})"
+        fmax_mhz = res["fmax_mhz"]
         row["resources"] = {k: res[k] for k in ("luts", "flip_flops", "mult18x18", "block_rams")}
         row["place_and_route"] = {"router": router, "seed": seed,
                                   "dp16kd_budget": block_ram_capacity(device) if block_rams is None else block_rams}
@@ -258,6 +273,24 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
 
 
 PROBE_SAMPLES = 2      # device samples through the probe port (at the initial position) to measure its latency
+
+
+def _check_placed_core(synth, manifest: dict, system: System, preset: str, lanes: int, node_lanes: int,
+                       pair_lanes: int | None) -> None:
+    """A `--synth` directory of another scene, preset or lane count is refused before the preset's bit-true
+    runs; the Verilog itself is compared once this core is emitted (sim.synth.same_verilog)."""
+    from .synth import describe_core
+    got = manifest.get("lanes", {})
+    wanted = [(manifest.get("scene"), system.name), (got.get("element_lanes_P"), lanes),
+              (got.get("node_lanes_Q"), node_lanes)]
+    if preset != "auto":
+        wanted.append((manifest.get("preset"), preset))
+    if pair_lanes is not None and got.get("pair_lanes"):
+        wanted.append((got.get("pair_lanes"), pair_lanes))
+    if any(a != b for a, b in wanted):
+        raise BadArgument(f"--synth {synth}: it holds {describe_core(manifest)}, not this bench's core (scene "
+                          f"{system.name}, preset {preset}, P {lanes}, Q {node_lanes}"
+                          + (f", Pp {pair_lanes}" if pair_lanes is not None else "") + ")")
 
 
 def probe_rates(port: dict, measured: list, fmax_mhz: float) -> dict:

