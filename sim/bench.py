@@ -242,6 +242,7 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
                lanes=lanes, node_lanes=node_lanes, pair_lanes=man["lanes"]["pair_lanes"], core=kind,
                simulator=simulator, cycles_per_step=cycles,
                cycles_per_step_schedule=man["cycles_per_step"]["value"], run_cycles=out["cycles"],
+               spare_lanes=man.get("spare_lanes", []),
                ideal_cycles_per_step=-(-system.n_elements // lanes),
                simulator_cycles_per_s=(sum(out["cycles"]) + sum(out.get("latency", []))) / max(out["wall_s"], 1e-9),
                core_dir=str(core_dir))

@@ -94,6 +94,20 @@ def test_lanes_are_parameters(tmp_path):
 
 
 @pytest.mark.hdl
+def test_a_spare_lane_is_named_with_the_options_of_one_fewer(tmp_path):
+    """gravity-2d-linear has fewer nodes than elements: one element lane's items outlast one node lane's
+    retirement, so a second node lane buys nothing, and `rheo verilog` says so."""
+    r = _rheo("verilog", "gravity-2d-linear", "--out", str(tmp_path), "--lanes", "1", "--node-lanes", "2",
+              "--core", "stream")
+    assert r.returncode == 0, r.stderr
+    man = json.loads((tmp_path / "manifest.json").read_text())
+    assert man["nodes"] < man["elements"]
+    assert [s["lanes"] for s in man["spare_lanes"]] == ["node_lanes_Q"]
+    assert man["spare_lanes"][0]["period_T"] <= man["cycles_per_step"]["value"]
+    assert "note: one node lane fewer (--lanes 1 --pair-lanes 1 --node-lanes 1)" in r.stdout, r.stdout
+
+
+@pytest.mark.hdl
 def test_full_featured_3d_build_has_every_unit_even_with_friction_that_never_slides():
     """The full-feature yardstick of a 3D scene at rest: its floor friction never slides in the range
     run, yet its 1/|k_f v_t| unit must get a format and the core must elaborate (it once raised KeyError)."""

@@ -24,7 +24,7 @@ import pytest
 from golden import mesh as meshlib
 from golden.scene import builtin_names
 from hw.stream.order import stream_order
-from hw.stream.schedule import BandwidthError, Latencies, build_schedule
+from hw.stream.schedule import BandwidthError, Latencies, build_schedule, spare_lanes
 
 from conftest import scene_system
 
@@ -219,3 +219,33 @@ def test_replay_catches_a_broken_schedule():
     early[0] -= 1
     with pytest.raises(Violation):
         replay(*args, sch.fill, early, sch.issue_start)
+
+
+def test_spare_lanes_named_when_one_fewer_keeps_the_period():
+    """A lane that leaves T unchanged is named with the options of one fewer; a lane that sets T is not."""
+    m = meshlib.rectangle(1.0, 1.0, 8, 8)                 # 81 nodes, 208 edges: items, not nodes, set T at P = 1
+    order = stream_order(len(m.nodes), m.edges, meshlib.topology_pairs(m.cells, m.nodes))
+    n_pairs = len(order.pair_nodes)
+    assert len(m.nodes) < len(m.edges) // 2 and n_pairs > 0
+    lat = LATENCIES[0]
+    sch = build_schedule(order, 1, 2, lat, pair_lanes=1)
+    spare = spare_lanes(order, sch)
+    assert [s["lanes"] for s in spare] == ["node_lanes_Q"]
+    assert spare[0]["fewer"] == 1 and spare[0]["options"] == "--lanes 1 --pair-lanes 1 --node-lanes 1"
+    assert spare[0]["period_T"] == sch.period == max(len(m.edges), n_pairs)
+    assert spare_lanes(order, build_schedule(order, 1, 1, lat, pair_lanes=1)) == []
+    # far more pair lanes than the pairs need beside one element lane: pair lanes are spare, elements not
+    sch = build_schedule(order, 1, 1, lat, pair_lanes=n_pairs)
+    assert [s["lanes"] for s in spare_lanes(order, sch)] == ["pair_lanes"]
+
+
+def test_spare_lanes_of_the_benchmark_square():
+    """At P = 6 the square's 1e4 elements take fewer slots than one node lane's retirement of every node,
+    so a second node lane is not spare; at P = 1 it is."""
+    from sim.bench import square_system
+    system = square_system(10_000)
+    order = stream_order(system.n_nodes, system.edges)
+    lat = Latencies(element=76, element_state=68, node=16)
+    assert math.ceil(system.n_elements / 6) < system.n_nodes < system.n_elements
+    assert spare_lanes(order, build_schedule(order, 6, 2, lat)) == []
+    assert [s["lanes"] for s in spare_lanes(order, build_schedule(order, 1, 2, lat))] == ["node_lanes_Q"]

@@ -18,7 +18,7 @@ from ..hostmap import HostMap
 from .kernels import dry_run_element, dry_run_node, dry_run_pair, dry_run_probe_sample, max_count
 from .nodeword import NodeWord
 from .order import lane_items, stream_order
-from .schedule import Latencies, build_schedule
+from .schedule import Latencies, build_schedule, spare_lanes
 
 
 class NotStreamable(NotSupported):
@@ -79,8 +79,9 @@ class StreamConfig:
                                    element_state=self.element_dry.outputs["state_stage"],
                                    node=self.node_dry.stage,
                                    pair=self.pair_dry.stage if self.pair_dry is not None else 0)
-        kw = {} if max_window_groups is None else {"max_window_groups": max_window_groups}
-        self.schedule = build_schedule(self.order, lanes, node_lanes, self.latencies, pair_lanes=pair_lanes, **kw)
+        self._window_kw = {} if max_window_groups is None else {"max_window_groups": max_window_groups}
+        self.schedule = build_schedule(self.order, lanes, node_lanes, self.latencies, pair_lanes=pair_lanes,
+                                       **self._window_kw)
         self.word = NodeWord.of(formats, p.dim)
 
     @classmethod
@@ -88,6 +89,10 @@ class StreamConfig:
         st = bt.initial_state()
         return cls(bt.params, bt.formats, bt.ar.units, lanes, node_lanes, {"X": st.X, "U": st.U, "A": st.A},
                    ram, **kw)
+
+    def spare_lanes(self) -> list[dict]:
+        """Lane kinds of which one fewer keeps the period (hw/stream/schedule.py `spare_lanes`)."""
+        return spare_lanes(self.order, self.schedule, **self._window_kw)
 
     # ---- sizes
     @property

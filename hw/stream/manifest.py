@@ -44,6 +44,7 @@ def manifest(bt, core, specialisation, top: str) -> dict:
             "Q": cfg.node_lanes,
             "value": sch.period, "run_cycles_1": sch.run_cycles(1),
         },
+        "spare_lanes": cfg.spare_lanes(),
         "schedule": sch.to_dict(),
         "saturation_flags": core.sat_quantities,
         "constant_saturations": core.const_saturations,

@@ -261,3 +261,31 @@ def build_schedule(order: StreamOrder, lanes: int, node_lanes: int, lat: Latenci
             f"or the phased core (--core phased)")
     return StreamSchedule(N, P, Q, Gs, C, Ce, Cp, int(T), int(Wg), lat, fill, retire, first_read, last_read,
                           first_write, last_write, order.bandwidth, binding, bounds, Pp if Pn else 0)
+
+
+SPARE_LANE_KINDS = ("element_lanes_P", "pair_lanes", "node_lanes_Q")
+
+
+def spare_lanes(order: StreamOrder, sch: StreamSchedule, max_window_groups: int = MAX_WINDOW_GROUPS) -> list[dict]:
+    """The lane kinds of schedule `sch` (of `order`) of which one fewer keeps its period T or shortens it
+    (fewer node lanes can: the retirement runs a group a cycle; each lane costs multipliers and logic for
+    nothing then): for each, its manifest name, the lane counts with one fewer
+    of it, their command-line options and T. Pair lanes count only in a scene with pairs; a fewer count
+    whose window would not fit is no spare."""
+    pairs = len(order.pair_nodes) > 0
+    counts = {"element_lanes_P": sch.lanes, "pair_lanes": sch.pair_lanes if pairs else 1,
+              "node_lanes_Q": sch.node_lanes}
+    out = []
+    for kind in SPARE_LANE_KINDS:
+        if counts[kind] < 2:
+            continue
+        fewer = dict(counts, **{kind: counts[kind] - 1})
+        P, Pp, Q = fewer["element_lanes_P"], fewer["pair_lanes"], fewer["node_lanes_Q"]
+        try:
+            t = build_schedule(order, P, Q, sch.latencies, max_window_groups, Pp).period
+        except BandwidthError:
+            continue
+        if t <= sch.period:
+            options = f"--lanes {P} " + (f"--pair-lanes {Pp} " if pairs else "") + f"--node-lanes {Q}"
+            out.append({"lanes": kind, "fewer": fewer[kind], "options": options, "period_T": int(t)})
+    return out

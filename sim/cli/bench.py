@@ -6,7 +6,8 @@ from __future__ import annotations
 import json
 
 from .common import (PRESET_CHOICES, UsageError, check_backend_fits, check_square_fits, lane_arguments, load_system,
-                     place_and_route_arguments, place_and_route_chosen, positive_float, positive_int)
+                     place_and_route_arguments, place_and_route_chosen, positive_float, positive_int,
+                     spare_lane_notes)
 
 NAME, HELP = "bench", "measure steps/s and element-updates/s on generated meshes"
 BENCH_BACKENDS = ("golden", "cpu", "fixed", "fpga")
@@ -140,6 +141,8 @@ def _print_fpga(rows) -> None:
               f"P = {r['lanes']}, " + (f"Pp = {r['pair_lanes']}, " if r.get("pair_lanes") else "")
               + f"Q = {r['node_lanes']}: {r['cycles_per_step']:.0f} cycles/step ({r['simulator']}: "
               f"{r['simulator_cycles_per_s']:.0f} cycles/s, host interface included)")
+        for line in spare_lane_notes(r.get("spare_lanes"), r["cycles_per_step_schedule"]):
+            print(f"  {line}")
         err = r.get("error_vs_golden")
         print(f"  {r['preset_why']}; its position error against golden: "
               + (f"{err:.1e} of the object size over {r['error_steps']} steps" if err is not None else "no run"))

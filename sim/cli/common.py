@@ -92,6 +92,17 @@ def place_and_route_arguments(parser, what: str = "") -> None:
                              "more shallow copies into LUT RAM: block RAM, and the routing into it, traded for LUTs")
 
 
+SPARE_LANE_NAMES = {"element_lanes_P": "element lane", "pair_lanes": "pair lane", "node_lanes_Q": "node lane"}
+
+
+def spare_lane_notes(spare, period: int) -> list[str]:
+    """One line per lane kind of which one fewer keeps the period `period` or shortens it (a manifest's
+    "spare_lanes")."""
+    return [f"note: one {SPARE_LANE_NAMES[s['lanes']]} fewer ({s['options']}) "
+            + (f"keeps T = {period}" if s["period_T"] == period else f"gives T = {s['period_T']}, not {period},")
+            + " cycles a step: that lane costs multipliers and logic for no speed" for s in spare or []]
+
+
 def place_and_route_chosen(args) -> bool:
     """Whether any option of place_and_route_arguments differs from its default."""
     return any(getattr(args, k) != v for k, v in PLACE_AND_ROUTE_DEFAULTS.items())

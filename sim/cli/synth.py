@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from .common import (PRESET_CHOICES, hardware_model, lane_arguments, place_and_route_arguments, positive_float,
-                     scene_argument)
+                     scene_argument, spare_lane_notes)
 from .verilog import full_argument
 
 NAME, HELP = "synth", "synthesise the scene's core for an ECP5: resources, Fmax, steps/s"
@@ -49,6 +49,8 @@ def run(args) -> int:
               "no place and route (--no-pnr): no Fmax" if not args.pnr else "no Fmax: see nextpnr.log")
     print(f"  {r['luts']} LUTs, {r['flip_flops']} FFs, {r['mult18x18']} 18x18 multipliers, {r['block_rams']} block RAMs; "
           + timing)
+    for line in spare_lane_notes(man.get("spare_lanes"), man["cycles_per_step"]["value"]):
+        print(f"  {line}")
     if r.get("fmax_mhz"):
         print(f"  {r['cycles_per_step']} cycles per step -> {r['modelled_steps_per_s']:.0f} steps/s modelled at Fmax")
     return 0

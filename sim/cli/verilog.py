@@ -1,7 +1,7 @@
 """`rheo verilog SCENE --out DIR`: the scene's specialised core as Verilog, with its manifest."""
 from __future__ import annotations
 
-from .common import FORMAT_PRESETS, hardware_model, lane_arguments, scene_argument
+from .common import FORMAT_PRESETS, hardware_model, lane_arguments, scene_argument, spare_lane_notes
 
 NAME, HELP = "verilog", "emit the scene's specialised core as Verilog with manifest.json"
 
@@ -33,4 +33,6 @@ def run(args) -> int:
     print(f"  left out: {', '.join(u['unit'] for u in man['units_left_out']) or 'nothing'}")
     print(f"  {cps['value']} cycles per step = {cps['formula']} (P = {cps['P']}, Q = {cps['Q']}); "
           f"{len(man['memories'])} memories, {man['memory_bits']} bits")
+    for line in spare_lane_notes(man.get("spare_lanes"), cps["value"]):
+        print(f"  {line}")
     return 0
