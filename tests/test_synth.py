@@ -138,6 +138,8 @@ def test_missed_constraint_is_reported_not_raised(mac_verilog, tmp_path, capsys)
 def test_unknown_router_is_refused_before_any_tool(mac_verilog, tmp_path):
     with pytest.raises(ValueError, match="unknown nextpnr router 'router3' .*router1, router2"):
         synthesize(mac_verilog, "mac_ram", tmp_path, router="router3")
+    with pytest.raises(ValueError, match="unknown nextpnr placer 'sa' .*heap, static"):
+        synthesize(mac_verilog, "mac_ram", tmp_path, placer="sa")
     assert not any(tmp_path.iterdir())
 
 

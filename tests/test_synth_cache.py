@@ -50,7 +50,7 @@ def test_a_result_of_another_yosys_script_answers_nothing(tmp_path, monkeypatch)
     assert synth.synthesize_cached(v, "rheo_core")[0] == {"tag": "_other"} and runs == ["_keep_apart", "_other"]
 
 
-def test_rheo_synth_hands_its_placement_seed_to_nextpnr(tmp_path):
+def test_rheo_synth_hands_its_placement_seed_and_placer_to_nextpnr(tmp_path):
     """`rheo synth --seed N` reaches synthesize() (nextpnr's --seed) and its result; the default is 1."""
     from sim.cli import build_parser
     from sim.cli.synth import _synthesize
@@ -63,12 +63,14 @@ def test_rheo_synth_hands_its_placement_seed_to_nextpnr(tmp_path):
                     "elements": 1, "nodes": 2, "units_present": [], "cycles_per_step": {"value": 10}}
 
     def fake_synthesize(verilog, top, out, **kw):
-        calls.append(kw["seed"])
+        calls.append((kw["seed"], kw["placer"]))
         return {"seed": kw["seed"], "fmax_mhz": None}
     parser = build_parser()
-    for argv, seed in ((["synth", "creep-1d", "--out", "d", "--seed", "5"], 5), (["synth", "creep-1d", "--out", "d"], 1)):
+    for argv, seed, placer in ((["synth", "creep-1d", "--out", "d", "--seed", "5"], 5, "heap"),
+                               (["synth", "creep-1d", "--out", "d"], 1, "heap"),
+                               (["synth", "creep-1d", "--out", "d", "--placer", "static"], 1, "static")):
         r, _ = _synthesize(parser.parse_args(argv), None, tmp_path, FakeEmit, fake_synthesize)
-        assert calls[-1] == seed and r["seed"] == seed
+        assert calls[-1] == (seed, placer) and r["seed"] == seed
 
 
 def test_rheo_synth_fits_the_devices_block_ram(tmp_path):
@@ -92,14 +94,15 @@ def test_rheo_synth_fits_the_devices_block_ram(tmp_path):
     assert budgets == [208, 108, 160]
 
 
-def test_router_and_seed_reach_nextpnr_and_key_the_cache(tmp_path, monkeypatch):
-    """`synthesize_cached` hands router and seed to synthesize() and files each choice apart: a router1
-    result does not answer a router2 question (their Fmax differ)."""
+def test_router_placer_and_seed_reach_nextpnr_and_key_the_cache(tmp_path, monkeypatch):
+    """`synthesize_cached` hands router, placer and seed to synthesize() and files each choice apart: a
+    router1 result does not answer a router2 question, nor a heap placement a static one (their Fmax
+    differ)."""
     monkeypatch.setenv("RHEO_BUILD", str(tmp_path / "build"))
     runs = []
 
-    def fake(verilog, top, out_dir, router, seed, **kw):
-        runs.append((router, seed))
+    def fake(verilog, top, out_dir, router, seed, placer, **kw):
+        runs.append((router, seed) + ((placer,) if placer != "heap" else ()))
         out_dir.mkdir(parents=True)
         (out_dir / "synth.json").write_text(json.dumps({"router": router, "seed": seed}))
         return {"router": router, "seed": seed}
@@ -111,7 +114,9 @@ def test_router_and_seed_reach_nextpnr_and_key_the_cache(tmp_path, monkeypatch):
     assert synth.synthesize_cached(v, "rheo_core", router="router2", seed=3)[0] == {"router": "router2", "seed": 3}
     assert synth.synthesize_cached(v, "rheo_core", router="router2", seed=3)[0] == {"router": "router2", "seed": 3}
     assert synth.synthesize_cached(v, "rheo_core", seed=3)[0] == {"router": "router1", "seed": 3}
-    assert runs == [("router1", 1), ("router2", 3), ("router1", 3)]
+    assert synth.synthesize_cached(v, "rheo_core", seed=3, placer="static")[0] == {"router": "router1", "seed": 3}
+    assert synth.synthesize_cached(v, "rheo_core", seed=3, placer="static")[0] == {"router": "router1", "seed": 3}
+    assert runs == [("router1", 1), ("router2", 3), ("router1", 3), ("router1", 3, "static")]
 
 
 def test_rheo_bench_hands_its_place_and_route_choices_to_the_fpga_benchmark(monkeypatch):
@@ -124,14 +129,15 @@ def test_rheo_bench_hands_its_place_and_route_choices_to_the_fpga_benchmark(monk
     seen = []
 
     def fake_run(backend, **kw):
-        seen.append({k: kw[k] for k in ("router", "seed", "block_rams")})
+        seen.append({k: kw[k] for k in ("router", "placer", "seed", "block_rams")})
         return []
     monkeypatch.setattr(bench, "run", fake_run)
     monkeypatch.setattr("sim.cli.bench._print_fpga", lambda rows: None)
     monkeypatch.setattr("sim.synth.check_tools", lambda place_and_route=True: None)
     parser = build_parser()
     for argv in (["bench", "--backend", "fpga"],
-                 ["bench", "--backend", "fpga", "--router", "router2", "--seed", "4", "--block-rams", "160"]):
+                 ["bench", "--backend", "fpga", "--router", "router2", "--placer", "static", "--seed", "4",
+                  "--block-rams", "160"]):
         assert run(parser.parse_args(argv)) == 0
-    assert seen == [{"router": "router1", "seed": 1, "block_rams": None},
-                    {"router": "router2", "seed": 4, "block_rams": 160}]
+    assert seen == [{"router": "router1", "placer": "heap", "seed": 1, "block_rams": None},
+                    {"router": "router2", "placer": "static", "seed": 4, "block_rams": 160}]

@@ -74,17 +74,21 @@ def lane_arguments(parser) -> None:
                              "auto: streaming unless the scene has collisions")
 
 
-PLACE_AND_ROUTE_DEFAULTS = {"router": "router1", "seed": 1, "block_rams": None}   # None: all the device has
+PLACE_AND_ROUTE_DEFAULTS = {"router": "router1", "placer": "heap", "seed": 1, "block_rams": None}   # None: all the
+                                                                                            # device has
 
 
 def place_and_route_arguments(parser, what: str = "") -> None:
-    """nextpnr's router and seed and the streaming core's DP16KD budget (`rheo synth`, `rheo bench --backend
+    """nextpnr's router, placer and seed and the streaming core's DP16KD budget (`rheo synth`, `rheo bench --backend
     fpga`); `what` prefixes the help (e.g. "fpga: ")."""
-    from sim.synth import ROUTERS
+    from sim.synth import PLACERS, ROUTERS
     d = PLACE_AND_ROUTE_DEFAULTS
     parser.add_argument("--router", choices=ROUTERS, default=d["router"],
                         help=f"{what}nextpnr's router (default router1, nextpnr's own; router2 gets through congested "
                              "designs sooner)")
+    parser.add_argument("--placer", choices=PLACERS, default=d["placer"],
+                        help=f"{what}nextpnr's placer (default heap, nextpnr's own; static, its electrostatic one, "
+                             "leaves less wire and less congestion on large cores)")
     parser.add_argument("--seed", type=positive_int, default=d["seed"],
                         help=f"{what}nextpnr's placement seed (default 1); Fmax moves by a few MHz from seed to seed")
     parser.add_argument("--block-rams", type=whole_number, default=d["block_rams"], metavar="N",

@@ -62,7 +62,8 @@ def _synthesize(args, bt, out: Path, emit, synthesize):
                      pair_lanes=args.pair_lanes,
                      dp16kd_budget=block_ram_capacity(args.device) if args.block_rams is None else args.block_rams)
     r = synthesize(out / man["verilog"], man["top"], out, device=args.device, clock_mhz=args.clock_mhz,
-                   seed=args.seed, progress=True, place_and_route=args.pnr, router=args.router)
+                   seed=args.seed, progress=True, place_and_route=args.pnr, router=args.router,
+                   placer=args.placer)
     r.update(scene=man["scene"], preset=man["preset"], full_featured=args.full, lanes=man["lanes"],
              elements=man["elements"], nodes=man["nodes"], units_present=[u["unit"] for u in man["units_present"]])
     cps = man["cycles_per_step"]["value"]
