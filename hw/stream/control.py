@@ -3,7 +3,8 @@
 
   fill     at run cycle fill_start + k T + phase, where the fill phase ROM has a 1: group g (counted
            from 0 in each period) of step k is read from the node store; `fill` carries it
-  issue    at issue_start + k T + c, c < C: item slot c of step k; `issue`
+  issue    at issue_start - ISSUE_FANOUT + k T + c, c < C: item slot c of step k; `issue` (each lane
+           registers it: ISSUE_FANOUT, hw/stream/core.py, so the lanes see it at issue_start + k T + c)
   retire   at retire_start + k T + phase, where the retire phase ROM has a 1: group g of step k
            retires; `retire` (with the step number: STEP, which counts retired steps)
 
@@ -25,7 +26,7 @@ from .bram import LATENCY, BlockRam
 from .element import IssueSignature
 from .node import RetireSignature
 from .nodeword import bits_for, delay
-from .schedule import LOOKAHEAD, SAT_TAIL
+from .schedule import ISSUE_FANOUT, LOOKAHEAD, SAT_TAIL
 
 FillSignature = RetireSignature
 
@@ -105,7 +106,7 @@ class Control(wiring.Component):
             m.d.sync += f_g.eq(0)
         m.d.comb += [self.fill.valid.eq(f_en), self.fill.group.eq(f_g), self.fill.slot.eq(f_base + f_g)]
         # issue
-        i_act, i_ph, i_base = process("issue", sch.issue_start, None)
+        i_act, i_ph, i_base = process("issue", sch.issue_start - ISSUE_FANOUT, None)
         m.d.comb += [self.issue.valid.eq(i_act & (i_ph < sch.slots)), self.issue.slot.eq(i_ph),
                      self.issue.base.eq(i_base)]
         # retire

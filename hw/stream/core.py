@@ -44,10 +44,12 @@ from .element import ElementLane
 from .forcering import ForceRing, RunSum
 from .hostport import HostPort, HostSignature
 from .node import NodeLane
+from ..rtl_fixed import KEEP_APART_TAG
 from .nodeword import delay, segment
 from .pair import PairLane
 from .probeport import ProbePort
 from .saturation import SaturationCounter
+from .schedule import ISSUE_FANOUT
 from .store import NodeStore
 from .tables import share as share_tables
 from .window import NodeWindow
@@ -205,7 +207,12 @@ class StreamCore(wiring.Component):
                      win.fill_data.eq(store.rd_data)]
 
         # element and pair lanes: issue, window reads, contributions into their rings
-        wiring.connect(m, ctl.issue, *[lane.issue for lane in self.elements + self.pairs])
+        # each lane registers the issue (ISSUE_FANOUT: the control issues that much earlier), its copy kept
+        # apart from the others' in Yosys: one register fed every lane's ROM and a-memory address
+        for lane in self.elements + self.pairs:
+            for f in ("valid", "slot", "base"):
+                m.d.comb += getattr(lane.issue, f).eq(delay(m, getattr(ctl.issue, f), ISSUE_FANOUT,
+                                                            f"{lane.prefix}_issue_{f}{KEEP_APART_TAG}"))
         ports = []
         for lane in self.elements:
             m.submodules[f"el{lane.lane}"] = lane

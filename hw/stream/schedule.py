@@ -58,6 +58,9 @@ RMW = 3               # a force ring word read at stage s is written back at sta
                       # registered before the block RAM's write port: hw/stream/forcering.py)
 LOOKAHEAD = 3         # the phase ROMs are read this many cycles ahead of their process (read latency 2,
                       # then the event bit registered)
+ISSUE_FANOUT = 1      # the issue registered in each lane (hw/stream/core.py): the control issues this many
+                      # cycles early. One register fed every lane's ROM and a-memory address across the die
+                      # (the 1e4 square at P = 6: 15.8 ns of routing, 49.4 MHz)
 SAT_TAIL = 5          # from a node's last result stage to the core's saturation count register (lane
                       # register 2, SaturationCounter 3)
 MAX_WINDOW_GROUPS = 512      # the largest window: one 512 x 36 DP16KD column per 36 bits of a group
@@ -120,7 +123,7 @@ class StreamSchedule:
     @property
     def issue_start(self) -> int:
         """A0: run cycle of step 0's slot 0 (the prologue: the fills that precede it)."""
-        return max(LOOKAHEAD + 1, LOOKAHEAD + 1 - int(self.fill[0]))
+        return max(LOOKAHEAD + 1 + ISSUE_FANOUT, LOOKAHEAD + 1 - int(self.fill[0]))
 
     @property
     def fill_start(self) -> int:
