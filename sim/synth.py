@@ -11,7 +11,7 @@ tmp_path, for one) would not reach the host, while relative ones (through its ".
        read_verilog [-sv] "RELATIVE/PATH/TO/VERILOG"
        hierarchy -top TOP
        proc
-       setattr -set keep 1 w:*_keep_apart* %ci1:+$dff[Q] w:*_keep_apart* %d
+       setattr -set keep 1 w:*_keep_apart* %a %ci1:+$dff[Q] w:*_keep_apart* %a %d
        synth_ecp5 -top TOP
        stat
        tee -q -o yosys-stat.json stat -json
@@ -21,7 +21,9 @@ tmp_path, for one) would not reach the host, while relative ones (through its ".
    The `setattr` keeps the registers named with hw/rtl_fixed.py KEEP_APART_TAG apart (the multipliers'
    operand registers, the write registers of LUT RAM copies in hw/stream/bram.py):
    `opt_merge` would make one flip-flop of two that hold the same value, feeding DSP blocks far apart;
-   with `keep` on the cell each stays beside its own (a design without such names is unchanged).
+   with `keep` on the cell each stays beside its own (a design without such names is unchanged). `%a`
+   takes the wires' aliases too: Amaranth may name the register after the port it drives (each lane's
+   issue register is the lane's `issue__slot`), leaving the tagged name an alias.
    `synth_ecp5` in Yosys 0.70 always maps LUTs with ABC9 (`abc9 -W 300` in its map_luts step); the
    old `-abc9` / `-noabc9` switches are accepted but change nothing, so none is passed. Cell counts
    (LUT4, TRELLIS_FF, CCU2C, MULT18X18D, DP16KD, TRELLIS_DPR16X4, ALU54B, ...) are counted from the
@@ -262,7 +264,7 @@ def yosys_script(read: str, top: str, clock_port: str, netlist: str) -> str:
         read,
         f"hierarchy -top {top}",
         "proc",
-        f"setattr -set keep 1 w:*{KEEP_APART_TAG}* %ci1:+$dff[Q] w:*{KEEP_APART_TAG}* %d",
+        f"setattr -set keep 1 w:*{KEEP_APART_TAG}* %a %ci1:+$dff[Q] w:*{KEEP_APART_TAG}* %a %d",
         f"synth_ecp5 -top {top}",
         "stat",
         "tee -q -o yosys-stat.json stat -json",

@@ -7,7 +7,7 @@ cached afterwards in the user cache directory); later runs of this file take abo
 import json
 
 import pytest
-from amaranth import Cat, Module, Signal, signed
+from amaranth import Cat, Const, Module, Signal, signed
 from amaranth.back import verilog
 from amaranth.lib import wiring
 from amaranth.lib.memory import Memory
@@ -265,3 +265,49 @@ def test_distributed_block_ram_maps_to_lut_ram(tmp_path):
     r = synthesize(src, "lut", tmp_path / "out", device="ecp5-85k", place_and_route=False)
     assert r["block_rams"] == 0 and r["distributed_rams"] == 2 * (2 * 11 * 2), r
     assert r["flip_flops"] == 2 * ((5 + 84 + 2) + 5 + 84), r
+
+
+class TwoDelayLines(wiring.Component):
+    """Two 8-bit values delayed 10 stages by a pipeline (hw/pipeline.py): two delay lines of one span, whose
+    address counters are equal; Yosys would merge them into one pair feeding both lines."""
+    a: In(8)
+    b: In(8)
+    o: Out(16)
+
+    def elaborate(self, platform):
+        from hw.pipeline import PipeArith
+        m = Module()
+        ar = PipeArith(m, {}, {}, Const(1, 1), "lane")
+        m.d.comb += self.o.eq(Cat(ar.delay(self.a, 0, 10), ar.delay(self.b, 0, 10)))
+        return m
+
+
+def test_delay_lines_keep_their_own_addresses(tmp_path):
+    """Each delay line counts its own write and read addresses (4 + 4 flip-flops, kept apart) beside its
+    output register (8) and its LUT RAM (2 TRELLIS_DPR16X4): 2 x 16 = 32 flip-flops; with the counters
+    merged there would be 24, with the old one counter a lane 20."""
+    src = tmp_path / "lines.v"
+    src.write_text(verilog.convert(TwoDelayLines(), name="lines"))
+    r = synthesize(src, "lines", tmp_path / "out", device="ecp5-85k", place_and_route=False)
+    assert r["distributed_rams"] == 2 * 2, r
+    assert r["flip_flops"] == 2 * (4 + 4 + 8), r["flip_flops"]
+
+
+def test_each_lane_registers_its_own_issue(tmp_path):
+    """The streaming core's issue (slot, base, valid) is registered in each lane (hw/stream/schedule.py
+    ISSUE_FANOUT), each copy kept apart: after Yosys the two element lanes' slot registers are two sets of
+    flip-flops, not one set feeding both lanes across the die. Amaranth names each register after the
+    lane port it drives, the tagged name an alias: the script's `%a` (sim/synth.py) follows it."""
+    from hw import emit
+    from conftest import bittrue
+    man = emit.write(bittrue("gravity-2d-linear", "narrow"), tmp_path, lanes=2, core="stream", ram="ecp5")
+    synthesize(tmp_path / man["verilog"], man["top"], tmp_path / "out", device="ecp5-85k", place_and_route=False)
+    netlist = json.loads((tmp_path / "out" / f"{man['top']}.json").read_text())
+    nets = netlist["modules"][man["top"]]["netnames"]
+    drivers = {}                                      # flip-flop output bit -> the cell
+    for c in netlist["modules"][man["top"]]["cells"].values():
+        if c["type"] == "TRELLIS_FF":
+            drivers[c["connections"]["Q"][0]] = c
+    slot = {lane: nets[f"el{lane}.issue__slot"]["bits"] for lane in (0, 1)}   # each lane's issue port
+    assert all(b in drivers for b in slot[0] + slot[1])
+    assert not set(slot[0]) & set(slot[1])

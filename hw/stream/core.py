@@ -207,12 +207,6 @@ class StreamCore(wiring.Component):
                      win.fill_data.eq(store.rd_data)]
 
         # element and pair lanes: issue, window reads, contributions into their rings
-        # each lane registers the issue (ISSUE_FANOUT: the control issues that much earlier), its copy kept
-        # apart from the others' in Yosys: one register fed every lane's ROM and a-memory address
-        for lane in self.elements + self.pairs:
-            for f in ("valid", "slot", "base"):
-                m.d.comb += getattr(lane.issue, f).eq(delay(m, getattr(ctl.issue, f), ISSUE_FANOUT,
-                                                            f"{lane.prefix}_issue_{f}{KEEP_APART_TAG}"))
         ports = []
         for lane in self.elements:
             m.submodules[f"el{lane.lane}"] = lane
@@ -222,6 +216,12 @@ class StreamCore(wiring.Component):
         for lane in self.pairs:
             m.submodules[f"pr{lane.lane}"] = lane
             ports += [(lane.rings[r], lane.contribs[r]) for r in range(D + 1)]
+        # each lane registers the issue (ISSUE_FANOUT: the control issues that much earlier), its copy kept
+        # apart from the others' in Yosys: one register fed every lane's ROM and a-memory address
+        for lane in self.elements + self.pairs:
+            for f in ("valid", "slot", "base"):
+                m.d.comb += getattr(lane.issue, f).eq(delay(m, getattr(ctl.issue, f), ISSUE_FANOUT,
+                                                            f"{lane.prefix}_issue_{f}{KEEP_APART_TAG}"))
         for (read, contrib), window_port, ring, info in zip(ports, win.reads, self.rings, cfg.rings):
             m.submodules[f"ring_{info.name}"] = ring
             wiring.connect(m, read, window_port)
