@@ -37,6 +37,7 @@ from amaranth.hdl import Cat, Module, Mux
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
+from ..rtl_fixed import KEEP_APART_TAG
 from .bram import LATENCY, lut_rams, plan_blocks, ram_record
 from .config import StreamConfig
 from .control import Control
@@ -44,7 +45,6 @@ from .element import ElementLane
 from .forcering import ForceRing, RunSum
 from .hostport import HostPort, HostSignature
 from .node import NodeLane
-from ..rtl_fixed import KEEP_APART_TAG
 from .nodeword import delay, segment
 from .pair import PairLane
 from .probeport import ProbePort
