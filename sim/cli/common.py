@@ -74,8 +74,8 @@ def lane_arguments(parser) -> None:
                              "auto: streaming unless the scene has collisions")
 
 
-PLACE_AND_ROUTE_DEFAULTS = {"router": "router1", "placer": "heap", "seed": 1, "block_rams": None}   # None: all the
-                                                                                            # device has
+# block_rams None: all the device has
+PLACE_AND_ROUTE_DEFAULTS = {"router": "router1", "placer": "heap", "seed": 1, "block_rams": None}
 
 
 def place_and_route_arguments(parser, what: str = "") -> None:
