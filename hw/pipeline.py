@@ -45,6 +45,7 @@ OP_LATENCY = 1
 LINE_WORDS = 16          # a delay line's memory: one TRELLIS_DPR16X4 deep
 LINE_MIN = 4             # delays of this many stages or more go through delay lines
 LINE_MAX = LINE_WORDS    # the longest one line spans (its read never meets the write of its cycle)
+LINE_GROUP = 8           # delay lines made one after another that share their address counters
 
 
 @dataclass
@@ -146,6 +147,8 @@ class PipeArith(Arith):
         self.const_sat = Saturations()
         self.memories: list[dict] = []         # the function units' memories, named by their place
         self.depth = 0
+        self._lines = 0                        # delay lines made so far
+        self._counters: dict = {}              # (line group, span; 0: write) -> its address counter
 
     def __enter__(self):
         _CURRENT.append(self)
@@ -208,20 +211,33 @@ class PipeArith(Arith):
     def _line(self, value: Value, span: int) -> Value:
         """`value` `span` cycles later (LINE_MIN <= span <= LINE_MAX) through a delay line: written every
         cycle at word t mod 16 (t: cycles since reset), read combinationally span - 1 words back, the word
-        registered. Each line counts its own write and read addresses (kept apart from the other lines'
-        in synthesis): one counter a lane fanned out to lines all over the die, and its route to a far
-        line's read address was the 1e3 poke core's critical path (12.3 ns of routing, 61 MHz)."""
+        registered. The addresses come from counters (`_line_address`) shared by LINE_GROUP lines made
+        one after another (near each other in the pipeline), each group's kept apart in synthesis."""
         assert LINE_MIN <= span <= LINE_MAX, span
         width = value.shape().width
         mem = Memory(shape=unsigned(width), depth=LINE_WORDS, init=[])
         name = self._name("line")
         self.m.submodules[name] = mem
-        w_addr = Signal(range(LINE_WORDS), name=f"{name}_w{KEEP_APART_TAG}")
-        r_addr = Signal(range(LINE_WORDS), init=-(span - 1) % LINE_WORDS, name=f"{name}_r{KEEP_APART_TAG}")
-        self.m.d.sync += [w_addr.eq(w_addr + 1), r_addr.eq(r_addr + 1)]
+        w_addr, r_addr = self._line_address(0), self._line_address(span)
+        self._lines += 1
         wr, rd = mem.write_port(), mem.read_port(domain="comb")
         self.m.d.comb += [wr.addr.eq(w_addr), wr.data.eq(value), wr.en.eq(1), rd.addr.eq(r_addr)]
         return self._reg(rd.data, value.shape(), "line")
+
+    def _line_address(self, span: int) -> Signal:
+        """The current line group's counter of write addresses (span 0) or of read addresses for `span`:
+        counting from -(span - 1) mod 16, one a cycle. One counter for all of a lane's lines was a
+        route across the die (12.3 ns of routing on the 1e3 poke, 61 MHz); a counter a line cost the
+        1e4 square 5,300 LUT4 and 6,200 flip-flops more, and its routability."""
+        group = self._lines // LINE_GROUP
+        key = (group, span)
+        if key not in self._counters:
+            what = "w" if span == 0 else f"r{span}"
+            counter = Signal(range(LINE_WORDS), init=-(span - 1) % LINE_WORDS if span else 0,
+                             name=f"{self.name}_lines{group}_{what}{KEEP_APART_TAG}")
+            self.m.d.sync += counter.eq(counter + 1)
+            self._counters[key] = counter
+        return self._counters[key]
 
     @staticmethod
     def _stage(*vals):

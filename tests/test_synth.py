@@ -267,30 +267,34 @@ def test_distributed_block_ram_maps_to_lut_ram(tmp_path):
     assert r["flip_flops"] == 2 * ((5 + 84 + 2) + 5 + 84), r
 
 
-class TwoDelayLines(wiring.Component):
-    """Two 8-bit values delayed 10 stages by a pipeline (hw/pipeline.py): two delay lines of one span, whose
-    address counters are equal; Yosys would merge them into one pair feeding both lines."""
-    a: In(8)
-    b: In(8)
-    o: Out(16)
+class DelayLines(wiring.Component):
+    """LINE_GROUP + 1 8-bit values, each delayed 10 stages by a pipeline (hw/pipeline.py): as many delay
+    lines of one span, in two groups."""
+
+    def __init__(self):
+        from hw.pipeline import LINE_GROUP
+        self.n = LINE_GROUP + 1
+        super().__init__({"a": In(8 * self.n), "o": Out(8 * self.n)})
 
     def elaborate(self, platform):
         from hw.pipeline import PipeArith
         m = Module()
         ar = PipeArith(m, {}, {}, Const(1, 1), "lane")
-        m.d.comb += self.o.eq(Cat(ar.delay(self.a, 0, 10), ar.delay(self.b, 0, 10)))
+        m.d.comb += self.o.eq(Cat(*(ar.delay(self.a[8 * k:8 * k + 8], 0, 10) for k in range(self.n))))
         return m
 
 
-def test_delay_lines_keep_their_own_addresses(tmp_path):
-    """Each delay line counts its own write and read addresses (4 + 4 flip-flops, kept apart) beside its
-    output register (8) and its LUT RAM (2 TRELLIS_DPR16X4): 2 x 16 = 32 flip-flops; with the counters
-    merged there would be 24, with the old one counter a lane 20."""
+def test_delay_line_groups_keep_their_own_addresses(tmp_path):
+    """A group of LINE_GROUP delay lines shares a write and a read address counter (4 + 4 flip-flops),
+    kept apart from the next group's; each line has its output register (8) and its LUT RAM (2
+    TRELLIS_DPR16X4): 2 x 8 + 9 x 8 flip-flops; one counter pair for all would be 8 fewer, a counter pair
+    a line 56 more (checked: 144)."""
+    dut = DelayLines()
     src = tmp_path / "lines.v"
-    src.write_text(verilog.convert(TwoDelayLines(), name="lines"))
+    src.write_text(verilog.convert(dut, name="lines"))
     r = synthesize(src, "lines", tmp_path / "out", device="ecp5-85k", place_and_route=False)
-    assert r["distributed_rams"] == 2 * 2, r
-    assert r["flip_flops"] == 2 * (4 + 4 + 8), r["flip_flops"]
+    assert r["distributed_rams"] == 2 * dut.n, r
+    assert r["flip_flops"] == 2 * (4 + 4) + dut.n * 8, r["flip_flops"]
 
 
 def test_each_lane_registers_its_own_issue(tmp_path):
