@@ -1,8 +1,8 @@
 """The streaming core's static schedule (hw/stream/schedule.py), checked by an independent event replay.
 
 The replay below knows only the hardware's timing conventions (restated here, not imported): item k of
-a stream runs in lane k % P at slot k // P, its window read is presented 2 cycles after issue (block RAM
-latency), a filled group is written into the window MEM + FILL = 3 cycles after its store read (the
+a stream runs in lane k % P at slot k // P, its window slot is presented 2 cycles after issue (block RAM
+latency) and read by the copy a cycle later (READ: registered in front of the copy), a filled group is written into the window MEM + FILL = 3 cycles after its store read (the
 block RAM's latency, then the registers in front of each window copy), its contribution is written
 RMW = 3 cycles after its pipeline stage; a read presented in the
 cycle of a write to the same word is undefined. It takes from the schedule only its decisions (the fill
@@ -28,8 +28,9 @@ from hw.stream.schedule import BandwidthError, Latencies, build_schedule, spare_
 
 from conftest import scene_system
 
-MEM, FILL, RMW = 2, 1, 3    # block RAM read latency; the fill's registers before the window copies; a
-                            # force ring word is written RMW cycles after its read
+MEM, FILL, READ, RMW = 2, 1, 1, 3   # block RAM read latency; the fill's registers before the window copies;
+                                    # an item's window slot registered before its copy; a force ring word is
+                                    # written RMW cycles after its read
 
 
 class Violation(AssertionError):
@@ -93,7 +94,7 @@ def replay(order, P, Q, lat, T, Wg, fill, retire, A0, steps=3, Pp=None):
                 lane, c = i % L, i // L
                 for role, n in enumerate(nodes):
                     n = int(n)
-                    window_read(k, n, t0(k) + c + MEM, f"{name} item {i} role {role}")
+                    window_read(k, n, t0(k) + c + MEM + READ, f"{name} item {i} role {role}")
                     word = (n % Q, (k * Gs + n // Q) % Wg)
                     rings[(name, lane, role, word)].append((t0(k) + c + stage + RMW, (k, n)))
     for log in rings.values():

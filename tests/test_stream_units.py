@@ -134,19 +134,19 @@ def test_node_window_copies_read_the_filled_groups():
         return d
 
     F = 1          # a fill presented in cycle t is written at the end of cycle t + F (the copies' registers)
+    R = 1          # a node read's slot presented in cycle t is read in cycle t + R (registered in front of its copy)
 
     def sample(t, get):
-        p = plan[t]
         log.append([get(dut.reads[k].data) for k in range(3)] + [get(dut.groups[0].data)])
         w = plan[t - F] if t >= F else dict(fe=0)      # the fill written in this cycle
-        exp = []
-        for k, (a, b) in enumerate(p["reads"]):
+        # the reads of this cycle: the node reads presented R cycles ago, the group read presented now
+        reads = [(k, plan[t - R]["reads"][k], t - R) for k in range(3) if t >= R] + [(3, plan[t]["reads"][3], t)]
+        for k, (a, b), t0 in reads:                 # node words 4 cycles after their slot, the group word 2
             if w["fe"] and a == w["fa"]:
-                exp.append(None)
+                e = None
             else:
-                exp.append((ring[a] >> (b * nb)) & ((1 << nb) - 1) if k < 3 else ring[a])
-        for k, e in enumerate(exp):                 # node reads 3 cycles later, the group read 2
-            expect.setdefault(t + (dut.node_latency if k < 3 else dut.latency), [None] * 4)[k] = e
+                e = (ring[a] >> (b * nb)) & ((1 << nb) - 1) if k < 3 else ring[a]
+            expect.setdefault(t0 + (dut.node_latency if k < 3 else dut.latency), [None] * 4)[k] = e
         if w["fe"]:
             ring[w["fa"]] = w["fd"]
 
@@ -345,7 +345,8 @@ def test_control_follows_the_schedule(P, Q, steps):
     ref_fill = [(A0 + k * T + int(sch.fill[g]), g, (k * Gs + g) % Wg) for k in range(steps) for g in range(Gs)]
     # the control issues ISSUE_FANOUT = 1 cycle early: each lane registers the issue (hw/stream/core.py)
     ref_issue = [(A0 - 1 + k * T + c, c, (k * Gs) % Wg) for k in range(steps) for c in range(sch.slots)]
-    ref_ret = [(A0 + k * T + int(sch.retire[g]), g, (k * Gs + g) % Wg, 40 + k, int(g == Gs - 1))
+    # and retires RETIRE_FANOUT = 1 cycle early: the node lanes, rings and window register the retirement
+    ref_ret = [(A0 - 1 + k * T + int(sch.retire[g]), g, (k * Gs + g) % Wg, 40 + k, int(g == Gs - 1))
                for k in range(steps) for g in range(Gs)]
     assert got["fill"] == ref_fill
     assert got["issue"] == ref_issue

@@ -5,14 +5,16 @@
            from 0 in each period) of step k is read from the node store; `fill` carries it
   issue    at issue_start - ISSUE_FANOUT + k T + c, c < C: item slot c of step k; `issue` (each lane
            registers it: ISSUE_FANOUT, hw/stream/core.py, so the lanes see it at issue_start + k T + c)
-  retire   at retire_start + k T + phase, where the retire phase ROM has a 1: group g of step k
-           retires; `retire` (with the step number: STEP, which counts retired steps)
+  retire   at retire_start - RETIRE_FANOUT + k T + phase, where the retire phase ROM has a 1: group g
+           of step k retires; `retire` (with the step number: STEP, which counts retired steps; the node
+           lanes, the force rings and the window register it: RETIRE_FANOUT, hw/stream/core.py)
 
 Each process keeps a window base register, k Gs mod Wg for its step k, added to its group index for
 the window slot. Its counters run LOOKAHEAD = 3 cycles ahead of its events, so that the phase ROM (a
 BlockRam, read latency 2) answers in time and its bit is registered before the event. The run ends
 `drain` cycles after the last step's last
-retirement (its results written and its saturations counted): busy falls after run_cycles(n) cycles.
+retirement (its results written and its saturations counted; counted from the control's retirement, a
+RETIRE_FANOUT earlier): busy falls after run_cycles(n) cycles.
 STEP counts every retired step; the RUN register (steps left) counts down with it. CYCLES counts the
 cycles spent busy since reset. While idle, the host may write STEP (`step_we`) and start a run.
 """
@@ -26,7 +28,7 @@ from .bram import LATENCY, BlockRam
 from .element import IssueSignature
 from .node import RetireSignature
 from .nodeword import bits_for, delay
-from .schedule import ISSUE_FANOUT, LOOKAHEAD, SAT_TAIL
+from .schedule import ISSUE_FANOUT, LOOKAHEAD, RETIRE_FANOUT, SAT_TAIL
 
 FillSignature = RetireSignature
 
@@ -37,6 +39,7 @@ class Control(wiring.Component):
             raise ValueError(f"a period of {schedule.period} cycles: the control needs at least 2")
         self.schedule, self.ram = schedule, ram
         sch = schedule
+        assert sch.retire_start - RETIRE_FANOUT > LOOKAHEAD, "the retirement starts before its phase ROM answers"
         self.wbits, self.gbits = bits_for(sch.window_groups), bits_for(sch.groups)
         super().__init__({
             "start": In(1), "steps": In(32), "step_we": In(1), "step_wdata": In(32),
@@ -110,7 +113,7 @@ class Control(wiring.Component):
         m.d.comb += [self.issue.valid.eq(i_act & (i_ph < sch.slots)), self.issue.slot.eq(i_ph),
                      self.issue.base.eq(i_base)]
         # retire
-        r_en, r_ph, r_base = process("retire", sch.retire_start, sch.retire_phases())
+        r_en, r_ph, r_base = process("retire", sch.retire_start - RETIRE_FANOUT, sch.retire_phases())
         r_g = Signal(self.gbits, name="retire_group")
         with m.If(r_en):
             m.d.sync += r_g.eq(r_g + 1)
@@ -122,7 +125,7 @@ class Control(wiring.Component):
                      self.retire.step.eq(self.step), self.retire.last.eq(last)]
 
         # steps, the end of the run
-        drain = sch.latencies.node + SAT_TAIL
+        drain = RETIRE_FANOUT + sch.latencies.node + SAT_TAIL
         draining = Signal(range(drain + 2))
         with m.If(busy):
             with m.If(last):

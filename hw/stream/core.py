@@ -49,7 +49,7 @@ from .nodeword import delay, segment
 from .pair import PairLane
 from .probeport import ProbePort
 from .saturation import SaturationCounter
-from .schedule import ISSUE_FANOUT
+from .schedule import ISSUE_FANOUT, RETIRE_FANOUT
 from .store import NodeStore
 from .tables import share as share_tables
 from .window import NodeWindow
@@ -227,15 +227,19 @@ class StreamCore(wiring.Component):
             wiring.connect(m, read, window_port)
             wiring.connect(m, contrib, ring.add)
 
-        # retirement: the window's group port and every ring's node copy at the group's slot
-        m.d.comb += win.groups[0].addr.eq(ctl.retire.slot)
-        for ring in self.rings:
-            m.d.comb += ring.node_addr.eq(ctl.retire.slot)
+        # retirement: the window's group port and every ring's node copy at the group's slot; each registers
+        # the retirement (RETIRE_FANOUT: the control retires that much earlier), as each node lane does,
+        # its copy kept apart: one register fed every ring across the die
+        def retired(what, name):
+            return delay(m, getattr(ctl.retire, what), RETIRE_FANOUT, f"{name}_retire_{what}{KEEP_APART_TAG}")
+        m.d.comb += win.groups[0].addr.eq(retired("slot", "window"))
+        for ring, info in zip(self.rings, cfg.rings):
+            m.d.comb += ring.node_addr.eq(retired("slot", f"ring_{info.name}"))
         for lane in self.nodes:
             q = lane.q
             m.submodules[f"nd{q}"] = lane
-            m.d.comb += [lane.retire.valid.eq(ctl.retire.valid), lane.retire.group.eq(ctl.retire.group),
-                         lane.retire.step.eq(ctl.retire.step),
+            m.d.comb += [lane.retire.valid.eq(retired("valid", f"nd{q}")), lane.retire.group.eq(retired("group", f"nd{q}")),
+                         lane.retire.step.eq(retired("step", f"nd{q}")),
                          lane.node.eq(segment(win.groups[0].data, q, word.bits, Q)),
                          lane.forces.eq(Cat(*[segment(ring.node_data, q, D * ring.acc_bits, Q) for ring in self.rings]))]
         m.d.comb += [store.wr_addr.eq(self.nodes[0].store_group),

@@ -9,7 +9,7 @@ Item k of the element stream runs in lane k % P at slot k // P of every step (hw
              and the a memory's word; the window read ports `ring_i`, `ring_j` get the slots
   stage 3    a, registered (nextpnr had the memory's output, 4.8 ns of routing and the damper's first
              operation in one cycle)
-  stage 5    x, u of nodes i and j from the window
+  stage 6    x, u of nodes i and j from the window (the slots registered in front of its copies at 3)
   ...        hw/datapath.py `element_kernel` through PipeArith (hw/stream/kernels.py), one stage per
              operation; the new a is written back at its stage (`state_stage`)
   `stage`    contributions: +fe to node i, -fe to node j, presented by node: the lower node's to the

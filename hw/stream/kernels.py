@@ -32,7 +32,7 @@ from .window import NODE_READ_LATENCY
 
 ROM_STAGE = LATENCY               # ROM fields valid at stage 2
 A_STAGE = ROM_STAGE + 1           # an element's a at stage 3: the memory's word registered beside the lane
-NODE_STAGE = ROM_STAGE + NODE_READ_LATENCY   # x, u at stage 5 (window read presented at stage 2)
+NODE_STAGE = ROM_STAGE + NODE_READ_LATENCY   # x, u at stage 6 (window slot presented at stage 2)
 FORCE_STAGE = LATENCY + 3         # node lanes: the force rings' words masked and registered, then summed in two levels
 PROBE_REGS = (("P", "x"), ("Pdot", "pdot"), ("Lo", "x"), ("Hi", "x"))   # the probe's registers, their formats
 

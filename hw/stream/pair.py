@@ -7,7 +7,7 @@ k // P. Like an element lane with D + 1 roles (the vertex, then the facet's vert
   stage 2    per role: window slot, bank, "first contribution of this lane to this node in this step"
              (the ROM's fields, dictionary-encoded: hw/stream/lanerom.py); the role's window read port
              `rings[r]` gets the slot
-  stage 5    x, u of the D + 1 nodes
+  stage 6    x, u of the D + 1 nodes
   `stage`    per role the pair force (zero where the pair's gate, d <= eps, is closed: the item still
              counts as the lane's contribution, so that a ring word's first contribution always writes),
              presented to the role's force ring (`contribs[r]`)

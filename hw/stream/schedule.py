@@ -8,20 +8,22 @@ go in *groups* of Q consecutive nodes (node n in group n // Q, bank n % Q, one n
 the fill reads a group from the node store, a node lane retires one node of a group, all in one cycle.
 
   issue      slot c: the lane's ROM (and its a word) is read; ROM data at c + M (M = MEMORY = 2)
-  ring read  c + M: the node's window address is presented; x, u at c + M + 3 (the pipeline's stage 5:
-             the bank's multiplexer registered, hw/stream/window.py)
+  ring read  c + M: the lane presents the node's window slot, registered in front of the copy (R =
+             READ_FANOUT), which reads it at c + M + R; x, u at c + M + R + 3 (the pipeline's stage 6: the
+             bank's multiplexer registered, hw/stream/window.py)
   contrib.   c + s: the pipeline's force (stage s: `Latencies.element` / `.pair`) reads its force ring;
              the sum is written at c + s + RMW (RMW = 3), readable from c + s + RMW + 1
   fill       t_f[g]: the node store's word g is read; registered in front of each window copy
              (F = FILL_FANOUT), written into every copy at t_f[g] + M + F, readable by a read presented
              from t_f[g] + M + F + 1
   retire     t_r[g]: the node lanes present group g's window and force ring addresses; results at
-             t_r[g] + `Latencies.node`, written into the node store in that cycle
+             t_r[g] + `Latencies.node`, written into the node store in that cycle (the control retires
+             at t_r[g] - RETIRE_FANOUT: the node lanes, the rings and the window register the retirement)
 
 Rules (a read presented in the cycle of a write to the same word sees neither value for sure, so every
 read the data path uses is strictly before or after the write it depends on):
 
-  fill       t_f[g] = min(first read of g - M - F - 1, t_f[g + 1] - 1): as late as possible, one group a cycle
+  fill       t_f[g] = min(first read of g (by a copy) - M - F - 1, t_f[g + 1] - 1): as late as possible, one group a cycle
   retire     t_r[g] = max(last contribution write of g + 1, t_f[g] + M + F + 1, t_r[g - 1] + 1): as early as
              possible, in group order, one group a cycle
   period     T = max(C, a write stage + 1 (an element's a is written before the next step reads it),
@@ -54,6 +56,10 @@ from .order import StreamOrder
 MEMORY = 2            # block RAM: address presented in cycle t, data (from its output register) in t + 2
 FILL_FANOUT = 1       # the fill's registers in front of each window copy (hw/stream/window.py): one
                       # register feeding every copy across the die was a long route at 1e4 elements
+READ_FANOUT = 1       # a node read's slot registered in front of its window copy (hw/stream/window.py): the
+                      # lane's slot adder and the route to a far copy were one cycle (1e3 poke: 12.6 ns)
+RETIRE_FANOUT = 1     # the retirement registered in each node lane, ring and the window's group port: the
+                      # control retires this many cycles early (1e3 poke: 11.2 ns into a far ring's copy)
 RMW = 3               # a force ring word read at stage s is written back at stage s + RMW (its sum
                       # registered before the block RAM's write port: hw/stream/forcering.py)
 LOOKAHEAD = 3         # the phase ROMs are read this many cycles ahead of their process (read latency 2,
@@ -85,7 +91,7 @@ class StreamSchedule:
     """The static schedule of one core (see the module docstring for the rules).
 
     Per group g (arrays of Gs): fill[g], retire[g]. Per node n (new numbering, arrays of N):
-    first_read[n], last_read[n] (cycles the ring address is presented), first_write[n],
+    first_read[n], last_read[n] (cycles a window copy reads the node), first_write[n],
     last_write[n] (force ring writes); NONE where a node has none. Cycles are relative to the start of
     the step's issue. `binding` names what sets T.
     """
@@ -165,7 +171,8 @@ class StreamSchedule:
             "bandwidth": self.bandwidth, "prologue_A0": self.issue_start,
             "fill_start": self.fill_start, "retire_start": self.retire_start, "drain": self.drain,
             "run_cycles": "A0 + (n - 1) T + drain + 1",
-            "latencies": {"memory": MEMORY, "fill_fanout": FILL_FANOUT, "rmw_write": RMW, "lookahead": LOOKAHEAD, "saturation_tail": SAT_TAIL,
+            "latencies": {"memory": MEMORY, "fill_fanout": FILL_FANOUT, "read_fanout": READ_FANOUT,
+                          "retire_fanout": RETIRE_FANOUT, "rmw_write": RMW, "lookahead": LOOKAHEAD, "saturation_tail": SAT_TAIL,
                           "element": lat.element, "element_state": lat.element_state, "pair": lat.pair,
                           "node": lat.node},
         }
@@ -210,7 +217,7 @@ def build_schedule(order: StreamOrder, lanes: int, node_lanes: int, lat: Latenci
     nodes = [order.ei, order.ej] + [order.pair_nodes[:, r] for r in range(order.pair_nodes.shape[1] if Pn else 0)]
     slots = [se, se] + [sp] * (len(nodes) - 2)
     stage = [lat.element, lat.element] + [lat.pair] * (len(nodes) - 2)
-    first_read, last_read = _node_extremes(N, nodes, [c + M for c in slots])
+    first_read, last_read = _node_extremes(N, nodes, [c + M + READ_FANOUT for c in slots])
     first_write, last_write = _node_extremes(N, nodes, [c + s + RMW for c, s in zip(slots, stage)])
 
     rd_first = _by_group(first_read, Q, Gs, NONE, np.min)

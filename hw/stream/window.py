@@ -6,9 +6,11 @@ step k; the index runs on across steps) lives in slot v mod Wg. The fill writes 
 apart in Yosys: one register feeding every copy across the die was a long route at 1e4 elements), so a
 fill presented in cycle t is written at the end of cycle t + 1; each read port reads its own copy. A
 node read port (`reads`) presents a slot and the node's bank (n % Q) and gets that node's word
-NODE_READ_LATENCY = 3 cycles later (the block RAM's 2, then the bank's multiplexer into a register:
-nextpnr put 4.8 ns of routing between a window copy and the multiplexer, which fed an element lane's
-first subtraction in the same cycle); a group read port (`groups`: the node lanes, which retire a whole
+NODE_READ_LATENCY = 4 cycles later: the slot registered in front of the copy (READ_FANOUT = 1, kept
+apart: the lane's slot adder and the route to a far copy were the 1e3 poke's critical path), the block
+RAM's 2, then the bank's multiplexer into a register (nextpnr put 4.8 ns of routing between a window
+copy and the multiplexer, which fed an element lane's first subtraction in the same cycle); a group
+read port (`groups`: the node lanes, which retire a whole
 group) gets the group word LATENCY = 2 cycles later. The schedule guarantees that every read sees the
 group its slot holds for that read's step (hw/stream/schedule.py).
 The copies listed in `lut_copies` are LUT RAM (`BlockRam(distributed=True)`, the same latency).
@@ -22,13 +24,13 @@ from amaranth.lib.wiring import In, Out
 from ..rtl_fixed import KEEP_APART_TAG
 from .bram import LATENCY, BlockRam, ram_record
 from .nodeword import NodeWord, bits_for, delay, segment
-from .schedule import FILL_FANOUT
+from .schedule import FILL_FANOUT, READ_FANOUT
 
-NODE_READ_LATENCY = LATENCY + 1
+NODE_READ_LATENCY = READ_FANOUT + LATENCY + 1
 
 
 def NodeReadSignature(word: NodeWord, node_lanes: int, window_groups: int):
-    """A node read port, from the reader's side: slot and bank out, the node word in (3 cycles later)."""
+    """A node read port, from the reader's side: slot and bank out, the node word in (4 cycles later)."""
     return wiring.Signature({"addr": Out(bits_for(window_groups)), "bank": Out(bits_for(node_lanes)),
                              "data": In(word.bits)})
 
@@ -68,10 +70,10 @@ class NodeWindow(wiring.Component):
             for src, dst, nm in ((self.fill_addr, ring.w_addr, "addr"), (self.fill_data, ring.w_data, "data"),
                                  (self.fill_en, ring.w_en, "en")):
                 m.d.comb += dst.eq(delay(m, src, FILL_FANOUT, f"copy{k}_fill_{nm}{KEEP_APART_TAG}"))
-            m.d.comb += ring.r_addr.eq(port.addr)
             if single:
-                bank = delay(m, port.bank, LATENCY, f"bank{k}")
+                m.d.comb += ring.r_addr.eq(delay(m, port.addr, READ_FANOUT, f"copy{k}_read_addr{KEEP_APART_TAG}"))
+                bank = delay(m, port.bank, READ_FANOUT + LATENCY, f"bank{k}")
                 m.d.sync += port.data.eq(segment(ring.r_data, bank, self.word.bits, self.Q))
             else:
-                m.d.comb += port.data.eq(ring.r_data)
+                m.d.comb += [ring.r_addr.eq(port.addr), port.data.eq(ring.r_data)]
         return m
