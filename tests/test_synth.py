@@ -301,7 +301,8 @@ def test_each_lane_registers_its_own_issue(tmp_path):
     """The streaming core's issue (slot, base, valid) is registered in each lane (hw/stream/schedule.py
     ISSUE_FANOUT), each copy kept apart: after Yosys the two element lanes' slot registers are two sets of
     flip-flops, not one set feeding both lanes across the die. Amaranth names each register after the
-    lane port it drives, the tagged name an alias: the script's `%a` (sim/synth.py) follows it."""
+    lane port it drives, the tagged name an alias: the script's `%a` (sim/synth.py) follows it. Each
+    force ring registers the retirement's slot for its node copy the same way (RETIRE_FANOUT)."""
     from hw import emit
     from conftest import bittrue
     man = emit.write(bittrue("gravity-2d-linear", "narrow"), tmp_path, lanes=2, core="stream", ram="ecp5")
@@ -315,3 +316,15 @@ def test_each_lane_registers_its_own_issue(tmp_path):
     slot = {lane: nets[f"el{lane}.issue__slot"]["bits"] for lane in (0, 1)}   # each lane's issue port
     assert all(b in drivers for b in slot[0] + slot[1])
     assert not set(slot[0]) & set(slot[1])
+    # each force ring's node copy (DP16KD) reads at flip-flops of its own, none shared with another ring
+    cells = netlist["modules"][man["top"]]["cells"]
+    readers = {}                                      # flip-flop -> the rings whose node copy it addresses
+    for name, c in cells.items():
+        ring, _, rest = name.partition(".")
+        if c["type"] == "DP16KD" and ring.startswith("ring_") and rest.startswith("copy."):
+            for pin, bits in c["connections"].items():
+                if pin.startswith("ADB") and bits[0] not in ("0", "1"):
+                    assert bits[0] in drivers, (name, pin)
+                    readers.setdefault(drivers[bits[0]]["connections"]["Q"][0], set()).add(ring)
+    assert len(set.union(*readers.values())) == 10    # 2 element lanes x 2 roles, 2 pair lanes x 3
+    assert all(len(r) == 1 for r in readers.values())
