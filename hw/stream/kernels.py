@@ -33,6 +33,7 @@ from .window import NODE_READ_LATENCY
 ROM_STAGE = LATENCY               # ROM fields valid at stage 2
 A_STAGE = ROM_STAGE + 1           # an element's a at stage 3: the memory's word registered beside the lane
 NODE_STAGE = ROM_STAGE + NODE_READ_LATENCY   # x, u at stage 6 (window slot presented at stage 2)
+GROUP_STAGE = ROM_STAGE + 1       # node lanes: x, u at stage 3, the window's group word registered beside the lane
 FORCE_STAGE = LATENCY + 3         # node lanes: the force rings' words masked and registered, then summed in two levels
 PROBE_REGS = (("P", "x"), ("Pdot", "pdot"), ("Lo", "x"), ("Hi", "x"))   # the probe's registers, their formats
 
@@ -97,8 +98,8 @@ def build_node(m, p, fmt, units, valid, name, src, X, U, Fe, step, probe: ProbeI
     to be read at "probe_stage"."""
     ar = NodeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, dsp=dsp)
     with ar:
-        Xp = [ar.input(v, "x", ROM_STAGE) for v in X]
-        Up = [ar.input(v, "u", ROM_STAGE) for v in U]
+        Xp = [ar.input(v, "x", GROUP_STAGE) for v in X]
+        Up = [ar.input(v, "u", GROUP_STAGE) for v in U]
         Fp = [ar.input(v, "fe", FORCE_STAGE) for v in Fe]
         if probe is None:
             new_x, new_u = node_kernel(ar, p, Xp, Up, Fp, step, _node_flags(p))

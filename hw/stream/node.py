@@ -5,9 +5,10 @@ when the stream has passed the group's last contribution (hw/stream/schedule.py)
 
   stage 0    `retire`: the group g, its step number; the window's group port and every force ring's
              node copy are read at the group's slot (by the core), the lane's ROM at g
-  stage 2    x, u (`node`: this lane's node of the group word), the ROM fields (whether the node exists:
-             the last group may be short; per force ring "this ring holds contributions to this node",
-             which masks the stale words of rings that do not; the kernel's flags and parameters)
+  stage 2    `node`: this lane's node of the group word, registered beside the lane (x, u at stage 3);
+             the ROM fields (whether the node exists: the last group may be short; per force ring "this
+             ring holds contributions to this node", which masks the stale words of rings that do not;
+             the kernel's flags and parameters)
   stage 5    the exact sum of the masked force ring words (`forces`): each masked word registered at
              stage 3 (only routing and one LUT after a ring's block RAM, which nextpnr may place far from
              the lane: 3.9 ns of routing measured), sums of up to FORCE_CHUNK of them registered at stage 4,
@@ -33,7 +34,7 @@ from amaranth.lib.wiring import In, Out
 from ..datapath import ProbeInputs
 from ..rtl_fixed import as_shape, tree_sum
 from .element import SAT_BITS
-from .kernels import FORCE_STAGE, PROBE_REGS, ROM_STAGE, build_node
+from .kernels import FORCE_STAGE, PROBE_REGS, build_node
 from .lanerom import LaneRom
 from .nodeword import bits_for, split_words
 
@@ -130,7 +131,11 @@ class NodeLane(wiring.Component):
             f = Signal(signed(self.sum_bits), name=f"{name}_force{k}")
             m.d.sync += f.eq(tree_sum(parts))
             F.append(f)
-        X, U = cfg.word.unpack(self.node)
+        # x, u: the window's group word registered beside the lane (nextpnr on the 1e3 poke: 4.1 ns of
+        # routing from the window copy, the floor test's carry chain and 4.5 ns more in one cycle)
+        node = Signal.like(self.node, name=f"{name}_node")
+        m.d.sync += node.eq(self.node)
+        X, U = cfg.word.unpack(node)
         probe = None
         if self.probe_stage is not None:
             probe = ProbeInputs(*[split_words(getattr(self, f"probe_{reg}"), D, as_shape(fmt[q]))
