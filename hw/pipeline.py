@@ -45,7 +45,7 @@ OP_LATENCY = 1
 LINE_WORDS = 16          # a delay line's memory: one TRELLIS_DPR16X4 deep
 LINE_MIN = 4             # delays of this many stages or more go through delay lines
 LINE_MAX = LINE_WORDS    # the longest one line spans (its read never meets the write of its cycle)
-LINE_GROUP = 8           # delay lines made one after another that share their address counters
+LINE_GROUP = 32          # delay lines made one after another that share their address counters
 
 
 @dataclass
