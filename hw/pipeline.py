@@ -228,7 +228,8 @@ class PipeArith(Arith):
         """The current line group's counter of write addresses (span 0) or of read addresses for `span`:
         counting from -(span - 1) mod 16, one a cycle. One counter for all of a lane's lines was a
         route across the die (12.3 ns of routing on the 1e3 poke, 61 MHz); a counter a line cost the
-        1e4 square 5,300 LUT4 and 6,200 flip-flops more, and its routability."""
+        1e4 square 5,300 LUT4 and 6,200 flip-flops more, and its route stalled; so did groups of 8
+        (1,000 LUT4 more than groups of 32, with which it routed: docs/streaming-core.md)."""
         group = self._lines // LINE_GROUP
         key = (group, span)
         if key not in self._counters:
