@@ -67,10 +67,15 @@ LOOKAHEAD = 3         # the phase ROMs are read this many cycles ahead of their 
 ISSUE_FANOUT = 1      # the issue registered in each lane (hw/stream/core.py): the control issues this many
                       # cycles early. One register fed every lane's ROM and a-memory address across the die
                       # (the 1e4 square at P = 6: 15.8 ns of routing, 49.4 MHz)
+BUSY_FANOUT = 1       # the control's busy registered in the store and each element lane (hw/stream/core.py),
+                      # which switch their memories' ports to the host while idle: they switch a cycle late,
+                      # and the host sees the core busy that cycle longer. The first use of a port is
+                      # LOOKAHEAD + 1 cycles after the start (the 1e4 square: 14 ns into far a memories)
 SAT_TAIL = 5          # from a node's last result stage to the core's saturation count register (lane
                       # register 2, SaturationCounter 3)
 MAX_WINDOW_GROUPS = 512      # the largest window: one 512 x 36 DP16KD column per 36 bits of a group
 NONE = np.iinfo(np.int64).max // 4
+assert BUSY_FANOUT <= LOOKAHEAD, "a unit's busy copy must be set before its memories' first pipeline use"
 
 
 class BandwidthError(NotSupported):
