@@ -54,11 +54,10 @@ import numpy as np
 from .order import StreamOrder
 
 MEMORY = 2            # block RAM: address presented in cycle t, data (from its output register) in t + 2
-FILL_FANOUT = 2       # the fill's registers on its way to each window copy (hw/stream/window.py): one per
-                      # FILL_GROUP copies, then one in front of each copy. One register feeding every copy
-                      # across the die was a long route at 1e4 elements; so was the store's output into a
-                      # register per copy (the square at P = 6: 13.3 ns of routing, 59.8 MHz)
-FILL_GROUP = 4
+FILL_FANOUT = 2       # the fill's registers on its way to each window copy (hw/stream/window.py): one for all
+                      # copies behind the store's row multiplexer, then one in front of each copy. The store's
+                      # output into every copy's register was a long route (the 1e4 square at P = 6: a LUT and
+                      # 13.3 ns of routing, 59.8 MHz); a register per 4 copies made more wire (router2)
 READ_FANOUT = 1       # a node read's slot registered in front of its window copy (hw/stream/window.py): the
                       # lane's slot adder and the route to a far copy were one cycle (1e3 poke: 12.6 ns)
 RETIRE_FANOUT = 1     # the retirement registered in each node lane, ring and the window's group port: the
