@@ -305,7 +305,7 @@ def test_host_port_decodes_registers_and_memories():
 
     valid_at = []
     simulate(dut, len(seq), drive, sample)
-    # the bus is registered on entry: a write's strobes a cycle after its request, answers 4 cycles after
+    # the bus is registered on entry: a write's strobes a cycle after its request, answers 5 cycles after
     assert strobes[1]["run_start"] == 1 and strobes[1]["run_steps"] == 7 and strobes[0]["run_start"] == 0
     assert strobes[2]["step_we"] == 1 and strobes[2]["step_wdata"] == 11
     assert strobes[3]["sat_clear"] == 1
@@ -313,7 +313,7 @@ def test_host_port_decodes_registers_and_memories():
     assert (strobes[5]["elem_we"], strobes[5]["elem_pos"]) == (0b01, 1)
     m32 = 0xFFFFFFFF
     assert answers == [ID_WORD, 3, 2, 12, 13, 5, 99, (-1) & m32, (-2) & m32]
-    assert dut.read_latency == 4 and valid_at == [len(writes) + k + 4 for k in range(len(reads))]
+    assert dut.read_latency == 5 and valid_at == [len(writes) + k + 5 for k in range(len(reads))]
 
 
 # ------------------------------------------------------------------------------------------ Control
