@@ -163,7 +163,8 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
                simulator: str = "verilator", steps: int = 2, fmax_mhz: float | None = None,
                device: str = "ecp5-85k", min_seconds: float = 1.0, range_steps: int | None = None,
                log=None, core: str = "auto", pair_lanes: int | None = None, router: str = "router1", seed: int = 1,
-               block_rams: int | None = None, synth: str | None = None, placer: str = "heap") -> dict:
+               block_rams: int | None = None, synth: str | None = None, placer: str = "heap",
+               speed_grade: int = 6) -> dict:
     """Modelled FPGA throughput of `system`'s specialised core and the golden model's measured throughput.
 
     The preset ("auto": the narrowest within 1e-3 of the object size of golden, sim.backends.narrowest_preset)
@@ -171,7 +172,8 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
     Cycles per step come from the HDL simulation: the core's CYCLES register over a run of 1 step and a
     run of `steps` steps after it (their difference over steps - 1: the streaming core's period, without
     its prologue and epilogue), from the initial state; each read-back must equal the bit-true model's.
-    With `fmax_mhz` None the core is placed and routed for `device` (once per Verilog, router, placer and seed, cached
+    With `fmax_mhz` None the core is placed and routed for `device` at `speed_grade` (once per Verilog, router,
+    placer, seed and grade, cached
     in build/synth/; the streaming core with its DP16KD instances, fitted to `block_rams` DP16KD, default
     all the device has); with `synth` (a `rheo synth` output directory) its Fmax is taken instead, once its
     Verilog is shown to be byte for byte this core's, emitted for synthesis (checked before the simulation).
@@ -249,16 +251,18 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
     if fmax_mhz is None:
         if placed is not None:
             res, router, seed = placed, placed.get("router", "router1"), placed.get("seed", 1)
-            placer = placed.get("placer", "heap")
-            source = f"measured: rheo synth's nextpnr-ecp5 on {device} ({synth}: the same Verilog)"
+            placer, speed_grade = placed.get("placer", "heap"), placed.get("speed_grade", 6)
+            source = (f"measured: rheo synth's nextpnr-ecp5 on {device}, speed grade {speed_grade} ({synth}: the same "
+                      "Verilog)")
         else:
             say(f"place and route for {device} (Yosys + nextpnr, once per Verilog; tens of minutes for large cores)")
             res, placed_dir = synthesize_cached(synth_dir / f"{man['top']}.v", man["top"], device=device,
-                                                progress=log is not None, router=router, seed=seed, placer=placer)
-            source = f"measured: nextpnr-ecp5 on {device} ({placed_dir})"
+                                                progress=log is not None, router=router, seed=seed, placer=placer,
+                                                speed_grade=speed_grade)
+            source = f"measured: nextpnr-ecp5 on {device}, speed grade {speed_grade} ({placed_dir})"
         fmax_mhz = res["fmax_mhz"]
         row["resources"] = {k: res[k] for k in ("luts", "flip_flops", "mult18x18", "block_rams")}
-        row["place_and_route"] = {"router": router, "placer": placer, "seed": seed,
+        row["place_and_route"] = {"router": router, "placer": placer, "seed": seed, "speed_grade": speed_grade,
                                   "dp16kd_budget": block_ram_capacity(device) if block_rams is None else block_rams}
     else:
         source = "stated (--fmax-mhz)"

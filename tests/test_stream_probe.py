@@ -273,7 +273,8 @@ def test_bench_fpga_states_the_probe_ports_latency_and_sample_rate_at_rheo_synth
     assert L == build_core(probe_model(TINY), 2, 2, "stream").probe_latency
     assert row["fmax_mhz"] == 47.5 and str(tmp_path / "placed") in row["fmax_source"]
     assert row["resources"] == {"luts": 1111, "flip_flops": 2222, "mult18x18": 33, "block_rams": 44}
-    assert row["place_and_route"] == {"router": "router2", "placer": "heap", "seed": 3, "dp16kd_budget": 208}
+    assert row["place_and_route"] == {"router": "router2", "placer": "heap", "seed": 3, "speed_grade": 6,
+                                      "dp16kd_budget": 208}
     assert row["probe_latency_us"] == pytest.approx(L / 47.5, rel=1e-12)
     assert row["device_samples_per_s"] == pytest.approx(47.5e6 / (L + 1), rel=1e-12)
     verilog = tmp_path / "placed" / man["verilog"]

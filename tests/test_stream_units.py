@@ -133,7 +133,7 @@ def test_node_window_copies_read_the_filled_groups():
             d[dut.reads[k].addr], d[dut.reads[k].bank] = p["reads"][k]
         return d
 
-    F = 1          # a fill presented in cycle t is written at the end of cycle t + F (the copies' registers)
+    F = 2          # a fill presented in cycle t is written at the end of cycle t + F (the register tree)
     R = 1          # a node read's slot presented in cycle t is read in cycle t + R (registered in front of its copy)
 
     def sample(t, get):
@@ -301,15 +301,19 @@ def test_host_port_decodes_registers_and_memories():
                                                           "node_addr", "node_bank", "node_field", "node_we", "elem_pos", "elem_we")})
         if get(dut.bus.r_valid):
             answers.append(get(dut.bus.r_data))
+            valid_at.append(t)
 
+    valid_at = []
     simulate(dut, len(seq), drive, sample)
-    assert strobes[0]["run_start"] == 1 and strobes[0]["run_steps"] == 7
-    assert strobes[1]["step_we"] == 1 and strobes[1]["step_wdata"] == 11
-    assert strobes[2]["sat_clear"] == 1
-    assert (strobes[3]["node_we"], strobes[3]["node_field"], strobes[3]["node_bank"], strobes[3]["node_addr"]) == (1, 1, 1, 1)
-    assert (strobes[4]["elem_we"], strobes[4]["elem_pos"]) == (0b01, 1)
+    # the bus is registered on entry: a write's strobes a cycle after its request, answers 5 cycles after
+    assert strobes[1]["run_start"] == 1 and strobes[1]["run_steps"] == 7 and strobes[0]["run_start"] == 0
+    assert strobes[2]["step_we"] == 1 and strobes[2]["step_wdata"] == 11
+    assert strobes[3]["sat_clear"] == 1
+    assert (strobes[4]["node_we"], strobes[4]["node_field"], strobes[4]["node_bank"], strobes[4]["node_addr"]) == (1, 1, 1, 1)
+    assert (strobes[5]["elem_we"], strobes[5]["elem_pos"]) == (0b01, 1)
     m32 = 0xFFFFFFFF
     assert answers == [ID_WORD, 3, 2, 12, 13, 5, 99, (-1) & m32, (-2) & m32]
+    assert dut.read_latency == 5 and valid_at == [len(writes) + k + 5 for k in range(len(reads))]
 
 
 # ------------------------------------------------------------------------------------------ Control

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 import sim.synth as synth
 
 
@@ -50,8 +52,9 @@ def test_a_result_of_another_yosys_script_answers_nothing(tmp_path, monkeypatch)
     assert synth.synthesize_cached(v, "rheo_core")[0] == {"tag": "_other"} and runs == ["_keep_apart", "_other"]
 
 
-def test_rheo_synth_hands_its_placement_seed_and_placer_to_nextpnr(tmp_path):
-    """`rheo synth --seed N` reaches synthesize() (nextpnr's --seed) and its result; the default is 1."""
+def test_rheo_synth_hands_its_placement_seed_placer_and_speed_grade_to_nextpnr(tmp_path):
+    """`rheo synth --seed N` reaches synthesize() (nextpnr's --seed) and its result; the default is 1; so do
+    --placer (default heap) and --speed-grade (default 6, the slowest part)."""
     from sim.cli import build_parser
     from sim.cli.synth import _synthesize
     calls = []
@@ -63,14 +66,29 @@ def test_rheo_synth_hands_its_placement_seed_and_placer_to_nextpnr(tmp_path):
                     "elements": 1, "nodes": 2, "units_present": [], "cycles_per_step": {"value": 10}}
 
     def fake_synthesize(verilog, top, out, **kw):
-        calls.append((kw["seed"], kw["placer"]))
+        calls.append((kw["seed"], kw["placer"], kw["speed_grade"]))
         return {"seed": kw["seed"], "fmax_mhz": None}
     parser = build_parser()
-    for argv, seed, placer in ((["synth", "creep-1d", "--out", "d", "--seed", "5"], 5, "heap"),
-                               (["synth", "creep-1d", "--out", "d"], 1, "heap"),
-                               (["synth", "creep-1d", "--out", "d", "--placer", "static"], 1, "static")):
+    for argv, seed, placer, grade in ((["synth", "creep-1d", "--out", "d", "--seed", "5"], 5, "heap", 6),
+                                      (["synth", "creep-1d", "--out", "d"], 1, "heap", 6),
+                                      (["synth", "creep-1d", "--out", "d", "--placer", "static"], 1, "static", 6),
+                                      (["synth", "creep-1d", "--out", "d", "--speed-grade", "8"], 1, "heap", 8)):
         r, _ = _synthesize(parser.parse_args(argv), None, tmp_path, FakeEmit, fake_synthesize)
-        assert calls[-1] == (seed, placer) and r["seed"] == seed
+        assert calls[-1] == (seed, placer, grade) and r["seed"] == seed
+
+
+def test_an_unknown_speed_grade_is_refused(tmp_path, capsys):
+    """`--speed-grade 9` is a usage error (exit 2, naming the grades), and synthesize() refuses it before
+    any tool runs."""
+    from sim.cli import build_parser
+    with pytest.raises(SystemExit) as e:
+        build_parser().parse_args(["synth", "creep-1d", "--out", "d", "--speed-grade", "9"])
+    assert e.value.code == 2 and "choose from 6, 7, 8" in capsys.readouterr().err
+    v = tmp_path / "core.v"
+    v.write_text("module rheo_core(input clk); endmodule\n")
+    with pytest.raises(ValueError, match="unknown ECP5 speed grade 9 .*6, 7, 8"):
+        synth.synthesize(v, "rheo_core", tmp_path / "out", speed_grade=9)
+    assert not (tmp_path / "out").exists()
 
 
 def test_rheo_synth_fits_the_devices_block_ram(tmp_path):
@@ -101,8 +119,8 @@ def test_router_placer_and_seed_reach_nextpnr_and_key_the_cache(tmp_path, monkey
     monkeypatch.setenv("RHEO_BUILD", str(tmp_path / "build"))
     runs = []
 
-    def fake(verilog, top, out_dir, router, seed, placer, **kw):
-        runs.append((router, seed) + ((placer,) if placer != "heap" else ()))
+    def fake(verilog, top, out_dir, router, seed, placer, speed_grade, **kw):
+        runs.append((router, seed) + ((placer,) if placer != "heap" else ()) + ((speed_grade,) if speed_grade != 6 else ()))
         out_dir.mkdir(parents=True)
         (out_dir / "synth.json").write_text(json.dumps({"router": router, "seed": seed}))
         return {"router": router, "seed": seed}
@@ -116,7 +134,8 @@ def test_router_placer_and_seed_reach_nextpnr_and_key_the_cache(tmp_path, monkey
     assert synth.synthesize_cached(v, "rheo_core", seed=3)[0] == {"router": "router1", "seed": 3}
     assert synth.synthesize_cached(v, "rheo_core", seed=3, placer="static")[0] == {"router": "router1", "seed": 3}
     assert synth.synthesize_cached(v, "rheo_core", seed=3, placer="static")[0] == {"router": "router1", "seed": 3}
-    assert runs == [("router1", 1), ("router2", 3), ("router1", 3), ("router1", 3, "static")]
+    assert synth.synthesize_cached(v, "rheo_core", seed=3, speed_grade=8)[0] == {"router": "router1", "seed": 3}
+    assert runs == [("router1", 1), ("router2", 3), ("router1", 3), ("router1", 3, "static"), ("router1", 3, 8)]
 
 
 def test_rheo_bench_hands_its_place_and_route_choices_to_the_fpga_benchmark(monkeypatch):
@@ -129,7 +148,7 @@ def test_rheo_bench_hands_its_place_and_route_choices_to_the_fpga_benchmark(monk
     seen = []
 
     def fake_run(backend, **kw):
-        seen.append({k: kw[k] for k in ("router", "placer", "seed", "block_rams")})
+        seen.append({k: kw[k] for k in ("router", "placer", "seed", "speed_grade", "block_rams")})
         return []
     monkeypatch.setattr(bench, "run", fake_run)
     monkeypatch.setattr("sim.cli.bench._print_fpga", lambda rows: None)
@@ -137,7 +156,7 @@ def test_rheo_bench_hands_its_place_and_route_choices_to_the_fpga_benchmark(monk
     parser = build_parser()
     for argv in (["bench", "--backend", "fpga"],
                  ["bench", "--backend", "fpga", "--router", "router2", "--placer", "static", "--seed", "4",
-                  "--block-rams", "160"]):
+                  "--speed-grade", "7", "--block-rams", "160"]):
         assert run(parser.parse_args(argv)) == 0
-    assert seen == [{"router": "router1", "placer": "heap", "seed": 1, "block_rams": None},
-                    {"router": "router2", "placer": "static", "seed": 4, "block_rams": 160}]
+    assert seen == [{"router": "router1", "placer": "heap", "seed": 1, "speed_grade": 6, "block_rams": None},
+                    {"router": "router2", "placer": "static", "seed": 4, "speed_grade": 7, "block_rams": 160}]

@@ -49,7 +49,7 @@ from .nodeword import delay, segment
 from .pair import PairLane
 from .probeport import ProbePort
 from .saturation import SaturationCounter
-from .schedule import ISSUE_FANOUT, RETIRE_FANOUT
+from .schedule import BUSY_FANOUT, ISSUE_FANOUT, RETIRE_FANOUT
 from .store import NodeStore
 from .tables import share as share_tables
 from .window import NodeWindow
@@ -191,14 +191,19 @@ class StreamCore(wiring.Component):
                     m.d.comb += getattr(lane, f"probe_{name}").eq(getattr(pp, f"reg_{name}"))
                 m.d.comb += [pp.lanes[lane.q].valid.eq(lane.probe_valid), pp.lanes[lane.q].first.eq(lane.probe_first),
                              pp.lanes[lane.q].touch.eq(lane.probe_touch), pp.lanes[lane.q].f.eq(lane.probe_f)]
+        # `busy` registered where it selects between the pipeline and the host (BUSY_FANOUT: the store and
+        # each element lane, each copy kept apart: the control's register fed every lane's a memory ports
+        # across the die, 14 ns on the 1e4 square); the host sees the core busy until every copy is idle
+        def busy_at(name):
+            return delay(m, ctl.busy, BUSY_FANOUT, f"{name}_busy{KEEP_APART_TAG}")
         m.d.comb += [ctl.step_we.eq(hp.step_we),
                      ctl.step_wdata.eq(hp.step_wdata),
-                     hp.busy.eq(ctl.busy), hp.steps_left.eq(ctl.steps_left), hp.step.eq(ctl.step),
+                     hp.busy.eq(ctl.busy | busy_at("host")), hp.steps_left.eq(ctl.steps_left), hp.step.eq(ctl.step),
                      hp.cycles.eq(ctl.cycles), hp.sat_count.eq(sat.count), hp.sat_flags.eq(sat.flags),
                      sat.clear.eq(hp.sat_clear)]
 
         # node store: the fill reads, the node lanes write, the host while idle
-        m.d.comb += [store.busy.eq(ctl.busy), store.rd_addr.eq(ctl.fill.group),
+        m.d.comb += [store.busy.eq(busy_at("store")), store.rd_addr.eq(ctl.fill.group),
                      store.h_addr.eq(hp.node_addr), store.h_bank.eq(hp.node_bank), store.h_field.eq(hp.node_field),
                      store.h_wdata.eq(hp.node_wdata), store.h_we.eq(hp.node_we), hp.node_rdata.eq(store.h_rdata)]
         # the fill: the store's group, LATENCY cycles after its read, into every window copy
@@ -210,7 +215,7 @@ class StreamCore(wiring.Component):
         ports = []
         for lane in self.elements:
             m.submodules[f"el{lane.lane}"] = lane
-            m.d.comb += [lane.busy.eq(ctl.busy), lane.host_pos.eq(hp.elem_pos), lane.host_wdata.eq(hp.elem_wdata),
+            m.d.comb += [lane.busy.eq(busy_at(lane.prefix)), lane.host_pos.eq(hp.elem_pos), lane.host_wdata.eq(hp.elem_wdata),
                          lane.host_we.eq(hp.elem_we[lane.lane]), hp.elem_rdata[lane.lane].eq(lane.host_rdata)]
             ports += [(lane.ring_i, lane.contrib_lo), (lane.ring_j, lane.contrib_hi)]
         for lane in self.pairs:

@@ -6,7 +6,8 @@ cycle its pipeline stage reads the ring (stage s of the lane); its sum is writte
 hw/stream/schedule.py):
 
   t      the ring word at (slot, bank) is read (block RAM, data at t + 2)
-  t + 1  flags: did the items one, two, three ahead write this word?  (registered compares)
+  t + 1  flags: did the items one, two, three ahead write this word?  (registered compares, a copy of
+         the flags per dimension: each drives one dimension's acc_bits multiplexers)
   t + 2  old = 0 if this is the lane's first contribution to the node in this step (`first`), else the
          sum of the nearest item ahead (one, two or three) that wrote this word, else the word read;
          new = old + value (exact, `acc_bits` bits per dimension), registered
@@ -35,6 +36,7 @@ from amaranth.hdl import Cat, Module, Mux, Signal, signed
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
+from ..rtl_fixed import KEEP_APART_TAG
 from .bram import LATENCY, BlockRam, ram_record
 from .nodeword import bits_for, delay
 from .schedule import RMW
@@ -93,15 +95,18 @@ class ForceRing(wiring.Component):
         en = {2: delay(m, add.valid, 2, "valid2")}
         for k in range(3, 5):
             en[k] = delay(m, en[k - 1], 1, f"valid{k}")
-        first2 = delay(m, add.first, 2, "first")
+        first1 = delay(m, add.first, 1, "first")
         value2 = delay(m, add.value, 2, "value")
         slot3, bank3 = delay(m, add.slot, 3, "slot"), delay(m, add.bank, 3, "bank")
         # forwarding flags for the item now at t + 2: did the item j ahead (j = 1, 2, 3) write its word?
-        # Registered compares at t + 1, of this item's word (word1) and the item j ahead's (word 1 + j)
-        fwd = {j: Signal(name=f"fwd{j}") for j in (1, 2, 3)}
-        m.d.sync += [fwd[j].eq(en[1 + j] & (word1 == words[1 + j])) for j in (1, 2, 3)]
+        # Registered compares at t + 1, of this item's word (word1) and the item j ahead's (word 1 + j),
+        # a copy per dimension (kept apart): each selects acc_bits multiplexers, not D acc_bits
+        hits = {j: en[1 + j] & (word1 == words[1 + j]) for j in (1, 2, 3)}
         sums = []
         for k in range(D):
+            fwd = {j: Signal(name=f"fwd{j}_{k}{KEEP_APART_TAG}") for j in (1, 2, 3)}
+            first2 = Signal(name=f"first2_{k}{KEEP_APART_TAG}")
+            m.d.sync += [fwd[j].eq(hits[j]) for j in (1, 2, 3)] + [first2.eq(first1)]
             rd = ring.r_data[k * A:(k + 1) * A].as_signed()
             last = {j: Signal(signed(A), name=f"last{j}_{k}") for j in (1, 2, 3)}   # sums 1, 2, 3 ahead
             new = Signal(signed(A), name=f"sum_{k}")

@@ -1,10 +1,14 @@
 """`HostPort`: the host interface of the streaming core (hw/hostmap.py: one register map for every core).
 
-Word addresses, 32-bit data; writes act at once, a read answers READ_LATENCY = 3 cycles after its
-request: the request cycle presents the decoded address to the memories (block RAMs, data two cycles
-later) while the address is registered, decoded into one select per answer and the selects registered;
-the answer (a register, or the memory word sign-extended from its format) is selected then and
-registered once more. Node state: field f of the node in store
+Word addresses, 32-bit data. The bus is registered on entry (address, data, strobes: the decoding
+and its fan-out to the control's counters and every lane's memory then start at flip-flops, not at the
+host's logic); a write acts a cycle after its request, a read answers `read_latency` = READ_LATENCY + 2
+= 5 cycles after it, `r_valid` marking the answer: the registered request presents the decoded address
+to the memories (block RAMs, data two cycles later) while the address is registered, decoded into one
+select per answer and the selects registered; the memories' words and the registers' values are
+registered on entry (the selects a cycle later with them), the answer (a register, or the memory word
+sign-extended from its format) is selected then and registered once more. Requests keep their order: a read sees
+every write requested before it. Node state: field f of the node in store
 bank `slot`, word `word` (the renumbering's placement, StreamConfig.host_map); element state: field 0
 (a) of item `pos` of element lane `lane`. Memory writes while busy are ignored and memory reads while
 busy answer undefined words (the pipeline owns the ports). RUN n > 0 starts a run when idle; STEP is
@@ -16,7 +20,7 @@ from amaranth.hdl import Cat, Module, Signal
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from ..hostmap import ADDR_BITS, ELEM_BASE, ID_WORD, NODE_BASE, Reg
+from ..hostmap import ADDR_BITS, ELEM_BASE, ID_WORD, NODE_BASE, READ_LATENCY, Reg
 
 
 HostSignature = wiring.Signature({
@@ -32,6 +36,7 @@ class HostPort(wiring.Component):
         hm = host_map
         fbits = max(s.width for s in node_fields)
         self.P = hm.lanes
+        self.read_latency = READ_LATENCY + 2
         super().__init__({
             "bus": In(HostSignature),
             "busy": In(1), "steps_left": In(32), "step": In(32), "sat_count": In(32),
@@ -47,27 +52,29 @@ class HostPort(wiring.Component):
         m = Module()
         hm, bus = self.map, self.bus
         wb, sb, pb, lb = hm.word_bits, hm.slot_bits, hm.pos_bits, hm.lane_bits
-        addr = bus.addr
+        addr, w_data, w_en, r_en = (Signal.like(v, name=f"bus_{n}") for v, n in
+                                    ((bus.addr, "addr"), (bus.w_data, "w_data"), (bus.w_en, "w_en"), (bus.r_en, "r_en")))
+        m.d.sync += [addr.eq(bus.addr), w_data.eq(bus.w_data), w_en.eq(bus.w_en), r_en.eq(bus.r_en)]
         in_node = (addr >= NODE_BASE) & (addr < ELEM_BASE)
         in_elem = addr >= ELEM_BASE
         noff, eoff = addr - NODE_BASE, addr - ELEM_BASE
         idle = ~self.busy
         m.d.comb += [
             self.node_addr.eq(noff[:wb]), self.node_bank.eq(noff[wb:wb + sb]), self.node_field.eq(noff >> (wb + sb)),
-            self.node_wdata.eq(bus.w_data), self.node_we.eq(bus.w_en & in_node & idle),
-            self.elem_pos.eq(eoff[:pb]), self.elem_wdata.eq(bus.w_data),
-            self.elem_we.eq(Cat(*[bus.w_en & in_elem & idle & ((eoff >> (pb + lb)) == 0) & (eoff[pb:pb + lb] == l)
+            self.node_wdata.eq(w_data), self.node_we.eq(w_en & in_node & idle),
+            self.elem_pos.eq(eoff[:pb]), self.elem_wdata.eq(w_data),
+            self.elem_we.eq(Cat(*[w_en & in_elem & idle & ((eoff >> (pb + lb)) == 0) & (eoff[pb:pb + lb] == l)
                                   for l in range(self.P)])),
-            self.run_start.eq(bus.w_en & (addr == Reg.RUN) & idle), self.run_steps.eq(bus.w_data),
-            self.step_we.eq(bus.w_en & (addr == Reg.STEP) & idle), self.step_wdata.eq(bus.w_data),
-            self.sat_clear.eq(bus.w_en & (addr == Reg.SATURATIONS)),
+            self.run_start.eq(w_en & (addr == Reg.RUN) & idle), self.run_steps.eq(w_data),
+            self.step_we.eq(w_en & (addr == Reg.STEP) & idle), self.step_wdata.eq(w_data),
+            self.sat_clear.eq(w_en & (addr == Reg.SATURATIONS)),
         ]
         # reads: the address registered, decoded and the decoding registered (so that the answer's
         # multiplexer has registered selects: nextpnr had the address arithmetic and the multiplexer of
         # the element lanes' words in one cycle), the answer selected then and registered
-        r_en1, r_en2 = Signal(), Signal()
+        r_en1, r_en2, r_en3 = Signal(), Signal(), Signal()
         a1 = Signal(ADDR_BITS)
-        m.d.sync += [r_en1.eq(bus.r_en), a1.eq(addr), r_en2.eq(r_en1)]
+        m.d.sync += [r_en1.eq(r_en), a1.eq(addr), r_en2.eq(r_en1), r_en3.eq(r_en2)]
         regs = {Reg.ID: ID_WORD, Reg.RUN: self.steps_left, Reg.STATUS: Cat(self.busy, self.sat_flags.any()),
                 Reg.STEP: self.step, Reg.SATURATIONS: self.sat_count, Reg.SATURATION_FLAGS: self.sat_flags,
                 Reg.CYCLES: self.cycles}
@@ -80,16 +87,27 @@ class HostPort(wiring.Component):
                      for f, sel in enumerate(is_field)]
         m.d.sync += [sel.eq((a1 >= ELEM_BASE) & ((e1 >> (pb + lb)) == 0) & (e1[pb:pb + lb] == l))
                      for l, sel in enumerate(is_lane)]
+        # the memories' words (from block RAMs all over the die) and the registers registered on entry,
+        # the selects a cycle later with them: the store's bank and field multiplexers, the route and the
+        # answer's multiplexer were one cycle (the 1e4 square at speed grade 8: 11.6 ns, its critical path)
+        def entered(v, name):
+            r = Signal.like(v, name=f"{name}_in")
+            m.d.sync += r.eq(v)
+            return r
+        regs = {reg: entered(v, reg.name.lower()) if not isinstance(v, int) else v for reg, v in regs.items()}
+        node_rdata = entered(self.node_rdata, "node_rdata")
+        elem_rdata = [entered(v, f"elem_rdata{l}") for l, v in enumerate(self.elem_rdata)]
+        is_reg, is_field, is_lane = ([entered(sel, sel.name) for sel in sels] for sels in (is_reg, is_field, is_lane))
         r_data = Signal(32)
         for sel, value in zip(is_reg, regs.values()):
             with m.If(sel):
                 m.d.comb += r_data.eq(value)
         for sel, shape in zip(is_field, self.node_fields):
-            raw = self.node_rdata[:shape.width]
+            raw = node_rdata[:shape.width]
             with m.If(sel):
                 m.d.comb += r_data.eq(raw.as_signed() if shape.signed else raw)
-        for sel, raw in zip(is_lane, self.elem_rdata):
+        for sel, raw in zip(is_lane, elem_rdata):
             with m.If(sel):
                 m.d.comb += r_data.eq(raw.as_signed() if self.a_shape.signed else raw)
-        m.d.sync += [bus.r_data.eq(r_data), bus.r_valid.eq(r_en2)]
+        m.d.sync += [bus.r_data.eq(r_data), bus.r_valid.eq(r_en3)]
         return m

@@ -12,6 +12,7 @@ def manifest(bt, core, specialisation, top: str) -> dict:
     units = core.own_unit_memories()
     E, N, Pn = cfg.n_elements, cfg.n_nodes, cfg.n_pairs
     host = cfg.host_map.to_dict()
+    host["read_latency_cycles"] = core.hostport.read_latency       # the bus registered on entry
     host["node_order"] = "reverse Cuthill-McKee: node n is node_numbering[n] of the stream; slot = its % Q, word = its // Q"
     host["node_numbering"] = [int(v) for v in cfg.order.perm]
     host["element_position"] = [int(v) for v in cfg.order.element_position()]

@@ -54,8 +54,10 @@ import numpy as np
 from .order import StreamOrder
 
 MEMORY = 2            # block RAM: address presented in cycle t, data (from its output register) in t + 2
-FILL_FANOUT = 1       # the fill's registers in front of each window copy (hw/stream/window.py): one
-                      # register feeding every copy across the die was a long route at 1e4 elements
+FILL_FANOUT = 2       # the fill's registers on its way to each window copy (hw/stream/window.py): one for all
+                      # copies behind the store's row multiplexer, then one in front of each copy. The store's
+                      # output into every copy's register was a long route (the 1e4 square at P = 6: a LUT and
+                      # 13.3 ns of routing, 59.8 MHz); a register per 4 copies made more wire (router2)
 READ_FANOUT = 1       # a node read's slot registered in front of its window copy (hw/stream/window.py): the
                       # lane's slot adder and the route to a far copy were one cycle (1e3 poke: 12.6 ns)
 RETIRE_FANOUT = 1     # the retirement registered in each node lane, ring and the window's group port: the
@@ -67,10 +69,15 @@ LOOKAHEAD = 3         # the phase ROMs are read this many cycles ahead of their 
 ISSUE_FANOUT = 1      # the issue registered in each lane (hw/stream/core.py): the control issues this many
                       # cycles early. One register fed every lane's ROM and a-memory address across the die
                       # (the 1e4 square at P = 6: 15.8 ns of routing, 49.4 MHz)
+BUSY_FANOUT = 1       # the control's busy registered in the store and each element lane (hw/stream/core.py),
+                      # which switch their memories' ports to the host while idle: they switch a cycle late,
+                      # and the host sees the core busy that cycle longer. The first use of a port is
+                      # LOOKAHEAD + 1 cycles after the start (the 1e4 square: 14 ns into far a memories)
 SAT_TAIL = 5          # from a node's last result stage to the core's saturation count register (lane
                       # register 2, SaturationCounter 3)
 MAX_WINDOW_GROUPS = 512      # the largest window: one 512 x 36 DP16KD column per 36 bits of a group
 NONE = np.iinfo(np.int64).max // 4
+assert BUSY_FANOUT <= LOOKAHEAD, "a unit's busy copy must be set before its memories' first pipeline use"
 
 
 class BandwidthError(NotSupported):

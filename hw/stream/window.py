@@ -2,9 +2,11 @@
 
 The ring holds Wg groups (W = Wg Q nodes, Wg a power of two). Virtual group v = k Gs + g (group g of
 step k; the index runs on across steps) lives in slot v mod Wg. The fill writes a whole group word
-(`fill`, one a cycle) into every copy, through registers of each copy's own (FILL_FANOUT = 1 cycle, kept
-apart in Yosys: one register feeding every copy across the die was a long route at 1e4 elements), so a
-fill presented in cycle t is written at the end of cycle t + 1; each read port reads its own copy. A
+(`fill`, one a cycle) into every copy through two registers (FILL_FANOUT = 2 cycles: one for all copies,
+behind the store's row multiplexer, then one in front of each copy, kept apart in Yosys: the store's
+output into every copy's register was the 1e4 square's longest route, a register per 4 copies made more
+wire), so a fill presented in cycle t is written at the end of cycle t + 2; each read port reads its own
+copy. A
 node read port (`reads`) presents a slot and the node's bank (n % Q) and gets that node's word
 NODE_READ_LATENCY = 4 cycles later: the slot registered in front of the copy (READ_FANOUT = 1, kept
 apart: the lane's slot adder and the route to a far copy were the 1e3 poke's critical path), the block
@@ -64,12 +66,13 @@ class NodeWindow(wiring.Component):
         m = Module()
         ports = [(p, True) for p in (self.reads if self.n_reads else [])]
         ports += [(p, False) for p in (self.groups if self.n_groups else [])]
+        fill = {nm: delay(m, src, FILL_FANOUT - 1, f"fill_{nm}")        # behind the store, for all copies
+                for src, nm in ((self.fill_addr, "addr"), (self.fill_data, "data"), (self.fill_en, "en"))}
         for k, (port, single) in enumerate(ports):
             ring = self.copy(k)
             m.submodules[f"copy{k}"] = ring
-            for src, dst, nm in ((self.fill_addr, ring.w_addr, "addr"), (self.fill_data, ring.w_data, "data"),
-                                 (self.fill_en, ring.w_en, "en")):
-                m.d.comb += dst.eq(delay(m, src, FILL_FANOUT, f"copy{k}_fill_{nm}{KEEP_APART_TAG}"))
+            for dst, nm in ((ring.w_addr, "addr"), (ring.w_data, "data"), (ring.w_en, "en")):
+                m.d.comb += dst.eq(delay(m, fill[nm], 1, f"copy{k}_fill_{nm}{KEEP_APART_TAG}"))
             if single:
                 m.d.comb += ring.r_addr.eq(delay(m, port.addr, READ_FANOUT, f"copy{k}_read_addr{KEEP_APART_TAG}"))
                 bank = delay(m, port.bank, READ_FANOUT + LATENCY, f"bank{k}")

@@ -57,10 +57,10 @@ def run(args) -> int:
         elif args.fmax_mhz is None:
             check_tools(place_and_route=True)
         elif place_and_route_chosen(args):
-            raise UsageError("--router, --placer, --seed and --block-rams choose how the core is placed and routed: "
+            raise UsageError("--router, --placer, --seed, --speed-grade and --block-rams choose how the core is placed and routed: "
                              "not with --fmax-mhz (no place and route)")
     elif place_and_route_chosen(args):
-        raise UsageError("--router, --placer, --seed and --block-rams belong to --backend fpga")
+        raise UsageError("--router, --placer, --seed, --speed-grade and --block-rams belong to --backend fpga")
     elif (any(v is not None for v in (args.preset, args.fmax_mhz, args.pair_lanes, args.synth)) or args.lanes != 1
           or args.node_lanes != 1 or args.core != "auto"):
         raise UsageError("--preset, --lanes, --node-lanes, --pair-lanes, --core, --fmax-mhz and --synth belong to "
@@ -78,7 +78,8 @@ def run(args) -> int:
         fpga = dict(preset=args.preset or "auto", lanes=args.lanes, node_lanes=args.node_lanes, core=args.core,
                     pair_lanes=args.pair_lanes,
                     simulator=args.simulator, steps=args.hdl_steps, fmax_mhz=args.fmax_mhz, device=args.device,
-                    router=args.router, placer=args.placer, seed=args.seed, block_rams=args.block_rams, synth=args.synth,
+                    router=args.router, placer=args.placer, seed=args.seed, speed_grade=args.speed_grade,
+                    block_rams=args.block_rams, synth=args.synth,
                     log=None if args.json else (lambda m: print(f"  {m}", flush=True)))
     rows = bench.run(args.backend, sizes=sizes, min_seconds=args.seconds, scene=scene, **fpga)
     if args.json:
@@ -95,11 +96,11 @@ def run(args) -> int:
 
 
 def _check_synth(args) -> None:
-    """`--synth DIR`: one placed core, whose device, router, placer, seed and DP16KD budget are DIR's."""
+    """`--synth DIR`: one placed core, whose device, router, placer, seed, speed grade and DP16KD budget are DIR's."""
     from sim.synth import read_placed
     if args.fmax_mhz is not None or place_and_route_chosen(args):
-        raise UsageError("--synth takes the Fmax, router, placer, seed and block RAM budget of its place and "
-                         "route: not with --fmax-mhz, --router, --placer, --seed or --block-rams")
+        raise UsageError("--synth takes the Fmax, router, placer, seed, speed grade and block RAM budget of its place "
+                         "and route: not with --fmax-mhz, --router, --placer, --seed, --speed-grade or --block-rams")
     if args.scene is None and args.sizes is not None and len(args.sizes) > 1:
         raise UsageError("--synth DIR holds one core: give one --scene or one --sizes value")
     placed, _ = read_placed(args.synth)

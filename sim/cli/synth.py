@@ -44,7 +44,7 @@ def run(args) -> int:
         print(f"  {len(moved)} shallow copies in LUT RAM to fit {args.device}'s "
               f"{man['block_ram_fit']['dp16kd_budget']} DP16KD: {', '.join(moved)}")
     timing = (f"Fmax {r['fmax_mhz']:.1f} MHz (constraint {args.clock_mhz} MHz, {'met' if r['timing_met'] else 'NOT met'}; "
-              f"seed {args.seed})"
+              f"seed {args.seed}, speed grade {args.speed_grade})"
               if args.pnr and r.get("fmax_mhz") is not None else
               "no place and route (--no-pnr): no Fmax" if not args.pnr else "no Fmax: see nextpnr.log")
     print(f"  {r['luts']} LUTs, {r['flip_flops']} FFs, {r['mult18x18']} 18x18 multipliers, {r['block_rams']} block RAMs; "
@@ -63,7 +63,7 @@ def _synthesize(args, bt, out: Path, emit, synthesize):
                      dp16kd_budget=block_ram_capacity(args.device) if args.block_rams is None else args.block_rams)
     r = synthesize(out / man["verilog"], man["top"], out, device=args.device, clock_mhz=args.clock_mhz,
                    seed=args.seed, progress=True, place_and_route=args.pnr, router=args.router,
-                   placer=args.placer)
+                   placer=args.placer, speed_grade=args.speed_grade)
     r.update(scene=man["scene"], preset=man["preset"], full_featured=args.full, lanes=man["lanes"],
              elements=man["elements"], nodes=man["nodes"], units_present=[u["unit"] for u in man["units_present"]])
     cps = man["cycles_per_step"]["value"]
