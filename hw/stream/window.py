@@ -3,7 +3,7 @@
 The ring holds Wg groups (W = Wg Q nodes, Wg a power of two). Virtual group v = k Gs + g (group g of
 step k; the index runs on across steps) lives in slot v mod Wg. The fill writes a whole group word
 (`fill`, one a cycle) into every copy through two registers (FILL_FANOUT = 2 cycles: one for all copies,
-behind the store's row multiplexer, then one in front of each copy, kept apart in Yosys: the store's
+behind the store's output, then one in front of each copy, kept apart in Yosys: the store's
 output into every copy's register was the 1e4 square's longest route, a register per 4 copies made more
 wire), so a fill presented in cycle t is written at the end of cycle t + 2; each read port reads its own
 copy. A
