@@ -21,6 +21,7 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
 from ..hostmap import ADDR_BITS, ELEM_BASE, ID_WORD, NODE_BASE, READ_LATENCY, Reg
+from .nodeword import delay
 
 
 HostSignature = wiring.Signature({
@@ -91,9 +92,7 @@ class HostPort(wiring.Component):
         # the selects a cycle later with them: the store's bank and field multiplexers, the route and the
         # answer's multiplexer were one cycle (the 1e4 square at speed grade 8: 11.6 ns, its critical path)
         def entered(v, name):
-            r = Signal.like(v, name=f"{name}_in")
-            m.d.sync += r.eq(v)
-            return r
+            return delay(m, v, 1, f"{name}_in")
         regs = {reg: entered(v, reg.name.lower()) if not isinstance(v, int) else v for reg, v in regs.items()}
         node_rdata = entered(self.node_rdata, "node_rdata")
         elem_rdata = [entered(v, f"elem_rdata{l}") for l, v in enumerate(self.elem_rdata)]
