@@ -121,6 +121,17 @@ def test_mac_design_resources_fmax_and_reports(mac_result):
            f"{100 * u['DP16KD']['used'] / u['DP16KD']['available']:.1f} |" in md
     assert f"LUT4 {r['luts']}," in md and f"TRELLIS_FF {r['flip_flops']}," in md
 
+    # the worst path is the one nextpnr's Fmax comes from; every endpoint pin is counted
+    cp = r["critical_path"]
+    assert cp["delay_ns"] == pytest.approx(1000.0 / r["fmax_mhz"], abs=0.01), (cp, r["fmax_mhz"])
+    assert cp["logic_ns"] + cp["routing_ns"] == pytest.approx(cp["delay_ns"], abs=0.002)
+    assert cp["routing_ns"] > 0 and cp["cells"] >= 1 and cp["longest_route"]["delay_ns"] <= cp["routing_ns"]
+    late = r["late_endpoints"]
+    assert late["period_ns"] == 20.0 and late["endpoints"] > 0
+    assert (late["late"] == 0) is r["timing_met"]
+    assert f"Critical path: `{cp['from']}` -> `{cp['to']}`, {cp['delay_ns']:.2f} ns" in md
+    assert f"**{late['late']}** of {late['endpoints']}" in md
+
 
 def test_missed_constraint_is_reported_not_raised(mac_verilog, tmp_path, capsys):
     r = synthesize(mac_verilog, "mac_ram", tmp_path, device="ecp5-45k", clock_mhz=1000.0, progress=True,
