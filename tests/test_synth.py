@@ -121,6 +121,17 @@ def test_mac_design_resources_fmax_and_reports(mac_result):
            f"{100 * u['DP16KD']['used'] / u['DP16KD']['available']:.1f} |" in md
     assert f"LUT4 {r['luts']}," in md and f"TRELLIS_FF {r['flip_flops']}," in md
 
+    # the worst path is the one nextpnr's Fmax comes from; every endpoint pin is counted
+    cp = r["critical_path"]
+    assert cp["delay_ns"] == pytest.approx(1000.0 / r["fmax_mhz"], abs=0.01), (cp, r["fmax_mhz"])
+    assert cp["logic_ns"] + cp["routing_ns"] == pytest.approx(cp["delay_ns"], abs=0.002)
+    assert cp["routing_ns"] > 0 and cp["cells"] >= 1 and cp["longest_route"]["delay_ns"] <= cp["routing_ns"]
+    late = r["late_endpoints"]
+    assert late["period_ns"] == 20.0 and late["endpoints"] > 0
+    assert (late["late"] == 0) is r["timing_met"]
+    assert f"Critical path: `{cp['from']}` -> `{cp['to']}`, {cp['delay_ns']:.2f} ns" in md
+    assert f"**{late['late']}** of {late['endpoints']}" in md
+
 
 def test_missed_constraint_is_reported_not_raised(mac_verilog, tmp_path, capsys):
     r = synthesize(mac_verilog, "mac_ram", tmp_path, device="ecp5-45k", clock_mhz=1000.0, progress=True,
@@ -314,27 +325,34 @@ def test_force_ring_registers_its_flags_per_dimension(tmp_path):
         assert all(b in driven for b in bits) and bits[0] != bits[1], (flag, bits)
 
 
-def test_each_lane_registers_its_own_issue(tmp_path):
+@pytest.fixture(scope="module")
+def stream_netlist(tmp_path_factory):
+    """The streaming core of gravity-2d-linear (2 element lanes, 2 pair lanes, DP16KD) after Yosys: its
+    top module's netnames and cells."""
+    from hw import emit
+    from conftest import bittrue
+    tmp_path = tmp_path_factory.mktemp("stream")
+    man = emit.write(bittrue("gravity-2d-linear", "narrow"), tmp_path, lanes=2, core="stream", ram="ecp5")
+    synthesize(tmp_path / man["verilog"], man["top"], tmp_path / "out", device="ecp5-85k", place_and_route=False)
+    top = json.loads((tmp_path / "out" / f"{man['top']}.json").read_text())["modules"][man["top"]]
+    return top["netnames"], top["cells"]
+
+
+def test_each_lane_registers_its_own_issue(stream_netlist):
     """The streaming core's issue (slot, base, valid) is registered in each lane (hw/stream/schedule.py
     ISSUE_FANOUT), each copy kept apart: after Yosys the two element lanes' slot registers are two sets of
     flip-flops, not one set feeding both lanes across the die. Amaranth names each register after the
     lane port it drives, the tagged name an alias: the script's `%a` (sim/synth.py) follows it. Each
     force ring registers the retirement's slot for its node copy the same way (RETIRE_FANOUT)."""
-    from hw import emit
-    from conftest import bittrue
-    man = emit.write(bittrue("gravity-2d-linear", "narrow"), tmp_path, lanes=2, core="stream", ram="ecp5")
-    synthesize(tmp_path / man["verilog"], man["top"], tmp_path / "out", device="ecp5-85k", place_and_route=False)
-    netlist = json.loads((tmp_path / "out" / f"{man['top']}.json").read_text())
-    nets = netlist["modules"][man["top"]]["netnames"]
+    nets, cells = stream_netlist
     drivers = {}                                      # flip-flop output bit -> the cell
-    for c in netlist["modules"][man["top"]]["cells"].values():
+    for c in cells.values():
         if c["type"] == "TRELLIS_FF":
             drivers[c["connections"]["Q"][0]] = c
     slot = {lane: nets[f"el{lane}.issue__slot"]["bits"] for lane in (0, 1)}   # each lane's issue port
     assert all(b in drivers for b in slot[0] + slot[1])
     assert not set(slot[0]) & set(slot[1])
     # each force ring's node copy (DP16KD) reads at flip-flops of its own, none shared with another ring
-    cells = netlist["modules"][man["top"]]["cells"]
     readers = {}                                      # flip-flop -> the rings whose node copy it addresses
     for name, c in cells.items():
         ring, _, rest = name.partition(".")
@@ -345,3 +363,17 @@ def test_each_lane_registers_its_own_issue(tmp_path):
                     readers.setdefault(drivers[bits[0]]["connections"]["Q"][0], set()).add(ring)
     assert len(set.union(*readers.values())) == 10    # 2 element lanes x 2 roles, 2 pair lanes x 3
     assert all(len(r) == 1 for r in readers.values())
+
+
+def test_only_control_state_has_a_reset(stream_netlist):
+    """Data registers have no reset (hw/pipeline.py, hw/stream/nodeword.py `delay(data=True)`): only valid
+    bits, strobes, counters and the control's state do. Before, 10,972 of this core's 15,344 flip-flops
+    sat on the reset net (the 1e4 square: 21,900, one net across the die); now about 1,200, and no
+    pipeline value, delay line or window word among them."""
+    nets, cells = stream_netlist
+    rst = nets["rst"]["bits"][0]
+    ffs = {name: c for name, c in cells.items() if c["type"] == "TRELLIS_FF"}
+    on_reset = [name for name, c in ffs.items() if c["connections"]["LSR"] == [rst]]
+    assert len(on_reset) < 0.1 * len(ffs), (len(on_reset), len(ffs))
+    values = ("_line_", "_dly_", "_mul_", "_sel_", "_sub_", "_add_", "_neg_", "fill_data", "ring_i__data", "_lines")
+    assert not [n for n in on_reset if any(v in n for v in values)], [n for n in on_reset if any(v in n for v in values)][:5]

@@ -57,8 +57,9 @@ BYTE = 9
 MODES = ((36, 512), (18, 1024), (9, 2048))       # DP16KD data width, depth
 
 
-def _register(m: Module, value, name: str) -> Signal:
-    reg = Signal.like(value, name=name)
+def _register(m: Module, value, name: str, data: bool = True) -> Signal:
+    """`value` registered; a data word (`data`) without reset, as hw/stream/nodeword.py `delay`."""
+    reg = Signal.like(value, name=name, **({"reset_less": True} if data else {}))
     m.d.sync += reg.eq(value)
     return reg
 
@@ -187,20 +188,20 @@ class BlockRam(wiring.Component):
                 # a write still sees it (both land a cycle later). Named to be kept apart in Yosys
                 # (sim/synth.py), which would otherwise share one write-enable decoder among copies all
                 # over the die (nextpnr, the 1e4 square at P = 5: 20.9 ns of routing, 41.3 MHz).
-                w_addr, w_data, w_en = (_register(m, v, f"{n}{KEEP_APART_TAG}") for v, n in
+                w_addr, w_data, w_en = (_register(m, v, f"{n}{KEEP_APART_TAG}", data=n != "w_en") for v, n in
                                         ((w_addr, "w_addr"), (w_data, "w_data"), (w_en, "w_en")))
             m.d.comb += [wp.addr.eq(w_addr), wp.data.eq(w_data),
                          wp.en.eq(w_en if self.segments > 1 else w_en[0])]
         for addr, data in self._reads():
             if self.distributed:         # the address registered, then the LUT RAM's asynchronous read
-                addr_q = Signal.like(addr, name="r_addr_q")
+                addr_q = Signal.like(addr, name="r_addr_q", reset_less=True)
                 m.d.sync += addr_q.eq(addr)
                 rp = mem.read_port(domain="comb")
                 m.d.comb += rp.addr.eq(addr_q)
             else:
                 rp = mem.read_port(domain="sync")
                 m.d.comb += rp.addr.eq(addr)
-            m.d.sync += data.eq(rp.data)
+            m.d.comb += data.eq(_register(m, rp.data, "r_word"))
         return m
 
     # ---- DP16KD instances
@@ -250,11 +251,11 @@ class BlockRam(wiring.Component):
                 # (kept apart in Yosys): one register for the whole word sat among blocks all over the die
                 # (the 1e4 square's shared Psi table: 13.6 ns of routing to a column's multiplexer)
                 row_r = addr[lbits:]
-                rsel = Signal.like(row_r, name=f"row{p}_d1")
+                rsel = Signal.like(row_r, name=f"row{p}_d1", reset_less=True)
                 m.d.sync += rsel.eq(row_r)
                 columns = []
                 for c in range(cols):
-                    rsel2 = Signal.like(row_r, name=f"row{p}_c{c}_d2{KEEP_APART_TAG}")
+                    rsel2 = Signal.like(row_r, name=f"row{p}_c{c}_d2{KEEP_APART_TAG}", reset_less=True)
                     m.d.sync += rsel2.eq(rsel)
                     col = Signal(w, name=f"word{p}_c{c}")
                     with m.Switch(rsel2):

@@ -207,7 +207,7 @@ class StreamCore(wiring.Component):
                      store.h_addr.eq(hp.node_addr), store.h_bank.eq(hp.node_bank), store.h_field.eq(hp.node_field),
                      store.h_wdata.eq(hp.node_wdata), store.h_we.eq(hp.node_we), hp.node_rdata.eq(store.h_rdata)]
         # the fill: the store's group, LATENCY cycles after its read, into every window copy
-        m.d.comb += [win.fill_addr.eq(delay(m, ctl.fill.slot, LATENCY, "fill_slot")),
+        m.d.comb += [win.fill_addr.eq(delay(m, ctl.fill.slot, LATENCY, "fill_slot", data=True)),
                      win.fill_en.eq(delay(m, ctl.fill.valid, LATENCY, "fill_valid")),
                      win.fill_data.eq(store.rd_data)]
 
@@ -226,7 +226,8 @@ class StreamCore(wiring.Component):
         for lane in self.elements + self.pairs:
             for f in ("valid", "slot", "base"):
                 m.d.comb += getattr(lane.issue, f).eq(delay(m, getattr(ctl.issue, f), ISSUE_FANOUT,
-                                                            f"{lane.prefix}_issue_{f}{KEEP_APART_TAG}"))
+                                                            f"{lane.prefix}_issue_{f}{KEEP_APART_TAG}",
+                                                            data=f != "valid"))
         for (read, contrib), window_port, ring, info in zip(ports, win.reads, self.rings, cfg.rings):
             m.submodules[f"ring_{info.name}"] = ring
             wiring.connect(m, read, window_port)
@@ -236,7 +237,8 @@ class StreamCore(wiring.Component):
         # the retirement (RETIRE_FANOUT: the control retires that much earlier), as each node lane does,
         # its copy kept apart: one register fed every ring across the die
         def retired(what, name):
-            return delay(m, getattr(ctl.retire, what), RETIRE_FANOUT, f"{name}_retire_{what}{KEEP_APART_TAG}")
+            return delay(m, getattr(ctl.retire, what), RETIRE_FANOUT, f"{name}_retire_{what}{KEEP_APART_TAG}",
+                         data=what not in ("valid", "last"))
         m.d.comb += win.groups[0].addr.eq(retired("slot", "window"))
         for ring, info in zip(self.rings, cfg.rings):
             m.d.comb += ring.node_addr.eq(retired("slot", f"ring_{info.name}"))

@@ -136,7 +136,7 @@ class ElementLane(wiring.Component):
             return sig
 
         # stage 2: window slots from the ROM and the step's base
-        base2 = delay(m, self.issue.base, ROM_STAGE, f"{name}_base")
+        base2 = delay(m, self.issue.base, ROM_STAGE, f"{name}_base", data=True)
         ports = (self.ring_i, self.ring_j)
         slots2 = []
         for (g, b), port in zip(roles, ports):
@@ -148,7 +148,7 @@ class ElementLane(wiring.Component):
         (Xi, Ui), (Xj, Uj) = word.unpack(self.ring_i.data), word.unpack(self.ring_j.data)
         a_shape = as_shape(fmt["a"])
         a_raw = delay(m, a_mem.r_data.as_signed() if a_shape.signed else a_mem.r_data, A_STAGE - ROM_STAGE,
-                      f"{name}_a_word")
+                      f"{name}_a_word", data=True)
         if self.tables is not None:
             self.tables.reset()
         built = build_element(m, p, fmt, cfg.units, valid0, name, src, a_raw, Xi, Xj, Ui, Uj, self.tables, cfg.ram)

@@ -88,16 +88,16 @@ class ForceRing(wiring.Component):
         word0 = Cat(add.bank, add.slot) if self.Q > 1 else add.slot
         m.d.comb += ring.r_addr.eq(word0)
         assert RMW == 3, "the forwarding below covers the three items ahead of a read"
-        word1 = delay(m, word0, 1, "word1")
+        word1 = delay(m, word0, 1, "word1", data=True)
         words = {1: word1}
         for k in range(2, 5):
-            words[k] = delay(m, words[k - 1], 1, f"word{k}")
+            words[k] = delay(m, words[k - 1], 1, f"word{k}", data=True)
         en = {2: delay(m, add.valid, 2, "valid2")}
         for k in range(3, 5):
             en[k] = delay(m, en[k - 1], 1, f"valid{k}")
         first1 = delay(m, add.first, 1, "first")
-        value2 = delay(m, add.value, 2, "value")
-        slot3, bank3 = delay(m, add.slot, 3, "slot"), delay(m, add.bank, 3, "bank")
+        value2 = delay(m, add.value, 2, "value", data=True)
+        slot3, bank3 = delay(m, add.slot, 3, "slot", data=True), delay(m, add.bank, 3, "bank", data=True)
         # forwarding flags for the item now at t + 2: did the item j ahead (j = 1, 2, 3) write its word?
         # Registered compares at t + 1, of this item's word (word1) and the item j ahead's (word 1 + j),
         # a copy per dimension (kept apart): each selects acc_bits multiplexers, not D acc_bits
@@ -108,7 +108,7 @@ class ForceRing(wiring.Component):
             first2 = Signal(name=f"first2_{k}{KEEP_APART_TAG}")
             m.d.sync += [fwd[j].eq(hits[j]) for j in (1, 2, 3)] + [first2.eq(first1)]
             rd = ring.r_data[k * A:(k + 1) * A].as_signed()
-            last = {j: Signal(signed(A), name=f"last{j}_{k}") for j in (1, 2, 3)}   # sums 1, 2, 3 ahead
+            last = {j: Signal(signed(A), name=f"last{j}_{k}", reset_less=True) for j in (1, 2, 3)}   # sums 1, 2, 3 ahead
             new = Signal(signed(A), name=f"sum_{k}")
             old = Mux(first2, 0, Mux(fwd[1], last[1], Mux(fwd[2], last[2], Mux(fwd[3], last[3], rd))))
             m.d.comb += new.eq(old + value2[k * F:(k + 1) * F].as_signed())
@@ -161,14 +161,14 @@ class RunSum(wiring.Component):
         add = self.add
         sums = []
         for k in range(D):
-            acc, new = Signal(signed(A), name=f"acc_{k}"), Signal(signed(A), name=f"sum_{k}")
+            acc, new = Signal(signed(A), name=f"acc_{k}", reset_less=True), Signal(signed(A), name=f"sum_{k}")
             m.d.comb += new.eq(Mux(add.first, 0, acc) + add.value[k * F:(k + 1) * F].as_signed())
             with m.If(add.valid):
                 m.d.sync += acc.eq(new)
             sums.append(new)
-        word2 = delay(m, Cat(*sums), RMW, "sum")
+        word2 = delay(m, Cat(*sums), RMW, "sum", data=True)
         write2 = delay(m, add.valid & add.last, RMW, "write")
-        slot2, bank2 = delay(m, add.slot, RMW, "slot"), delay(m, add.bank, RMW, "bank")
+        slot2, bank2 = delay(m, add.slot, RMW, "slot", data=True), delay(m, add.bank, RMW, "bank", data=True)
         m.d.comb += [copy.w_addr.eq(slot2), copy.w_data.eq(word2.replicate(self.Q)),
                      copy.w_en.eq(Cat(*[write2 & (bank2 == q) for q in range(self.Q)])),
                      copy.r_addr.eq(self.node_addr), self.node_data.eq(copy.r_data)]

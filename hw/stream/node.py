@@ -120,20 +120,20 @@ class NodeLane(wiring.Component):
         for k in range(D):
             parts = []
             for c in range(0, R, FORCE_CHUNK):
-                part = Signal(signed(self.sum_bits), name=f"{name}_force{k}_{c // FORCE_CHUNK}")
+                part = Signal(signed(self.sum_bits), name=f"{name}_force{k}_{c // FORCE_CHUNK}", reset_less=True)
                 masked = []
                 for r in range(c, min(R, c + FORCE_CHUNK)):
-                    w = Signal(signed(self.force_bits[r]), name=f"{name}_ring{r}_f{k}")
+                    w = Signal(signed(self.force_bits[r]), name=f"{name}_ring{r}_f{k}", reset_less=True)
                     m.d.sync += w.eq(Mux(mask_bits[r], words[r][k], 0))
                     masked.append(w)
                 m.d.sync += part.eq(tree_sum(masked))
                 parts.append(part)
-            f = Signal(signed(self.sum_bits), name=f"{name}_force{k}")
+            f = Signal(signed(self.sum_bits), name=f"{name}_force{k}", reset_less=True)
             m.d.sync += f.eq(tree_sum(parts))
             F.append(f)
         # x, u: the window's group word registered beside the lane (nextpnr on the 1e3 poke: 4.1 ns of
         # routing from the window copy, the floor test's carry chain and 4.5 ns more in one cycle)
-        node = Signal.like(self.node, name=f"{name}_node")
+        node = Signal.like(self.node, name=f"{name}_node", reset_less=True)
         m.d.sync += node.eq(self.node)
         X, U = cfg.word.unpack(node)
         probe = None

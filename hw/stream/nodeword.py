@@ -77,10 +77,12 @@ def bits_for(count: int) -> int:
     return max(1, int(count - 1).bit_length())
 
 
-def delay(m, value, cycles: int, name: str):
-    """`value` `cycles` cycles later (a chain of registers)."""
+def delay(m, value, cycles: int, name: str, *, data: bool = False):
+    """`value` `cycles` cycles later (a chain of registers). `data`: a data word, whose registers have no
+    reset, as a pipeline's values have none (hw/pipeline.py): whoever uses it qualifies it with a valid
+    bit, a strobe or a state that does."""
     for k in range(cycles):
-        r = Signal.like(value, name=f"{name}_d{k + 1}")
+        r = Signal.like(value, name=f"{name}_d{k + 1}", **({"reset_less": True} if data else {}))
         m.d.sync += r.eq(value)
         value = r
     return value

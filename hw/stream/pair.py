@@ -89,7 +89,7 @@ class PairLane(wiring.Component):
         valid0 = Signal(name=f"{name}_valid0")
         m.d.comb += valid0.eq(self.issue.valid & (self.issue.slot < len(self.items)))
         rom = self.rom
-        base2 = delay(m, self.issue.base, ROM_STAGE, f"{name}_base")
+        base2 = delay(m, self.issue.base, ROM_STAGE, f"{name}_base", data=True)
         roles, X, U = [], [], []
         for r in range(D + 1):
             g, b, f = [rom.signal(f"{name}_{what}{r}") for what in ("g", "b", "first")]

@@ -58,8 +58,8 @@ class NodeStore(wiring.Component):
             ]
             rdata.append(bank.r_data)
         m.d.comb += self.rd_data.eq(Cat(*rdata))
-        bank_d = delay(m, self.h_bank, LATENCY, "h_bank")
-        field_d = delay(m, self.h_field, LATENCY, "h_field")
+        bank_d = delay(m, self.h_bank, LATENCY, "h_bank", data=True)
+        field_d = delay(m, self.h_field, LATENCY, "h_field", data=True)
         node = segment(self.rd_data, bank_d, w.bits, Q)
         m.d.comb += self.h_rdata.eq(segment(node, field_d, w.field_bits, w.fields))
         return m

@@ -66,17 +66,19 @@ class NodeWindow(wiring.Component):
         m = Module()
         ports = [(p, True) for p in (self.reads if self.n_reads else [])]
         ports += [(p, False) for p in (self.groups if self.n_groups else [])]
-        fill = {nm: delay(m, src, FILL_FANOUT - 1, f"fill_{nm}")        # behind the store, for all copies
+        fill = {nm: delay(m, src, FILL_FANOUT - 1, f"fill_{nm}", data=nm != "en")   # behind the store
                 for src, nm in ((self.fill_addr, "addr"), (self.fill_data, "data"), (self.fill_en, "en"))}
         for k, (port, single) in enumerate(ports):
             ring = self.copy(k)
             m.submodules[f"copy{k}"] = ring
             for dst, nm in ((ring.w_addr, "addr"), (ring.w_data, "data"), (ring.w_en, "en")):
-                m.d.comb += dst.eq(delay(m, fill[nm], 1, f"copy{k}_fill_{nm}{KEEP_APART_TAG}"))
+                m.d.comb += dst.eq(delay(m, fill[nm], 1, f"copy{k}_fill_{nm}{KEEP_APART_TAG}", data=nm != "en"))
             if single:
-                m.d.comb += ring.r_addr.eq(delay(m, port.addr, READ_FANOUT, f"copy{k}_read_addr{KEEP_APART_TAG}"))
-                bank = delay(m, port.bank, READ_FANOUT + LATENCY, f"bank{k}")
-                m.d.sync += port.data.eq(segment(ring.r_data, bank, self.word.bits, self.Q))
+                m.d.comb += ring.r_addr.eq(delay(m, port.addr, READ_FANOUT, f"copy{k}_read_addr{KEEP_APART_TAG}",
+                                                 data=True))
+                bank = delay(m, port.bank, READ_FANOUT + LATENCY, f"bank{k}", data=True)
+                m.d.comb += port.data.eq(delay(m, segment(ring.r_data, bank, self.word.bits, self.Q), 1,
+                                               f"copy{k}_word", data=True))
             else:
                 m.d.comb += [ring.r_addr.eq(port.addr), port.data.eq(ring.r_data)]
         return m

@@ -49,6 +49,11 @@ def run(args) -> int:
               "no place and route (--no-pnr): no Fmax" if not args.pnr else "no Fmax: see nextpnr.log")
     print(f"  {r['luts']} LUTs, {r['flip_flops']} FFs, {r['mult18x18']} 18x18 multipliers, {r['block_rams']} block RAMs; "
           + timing)
+    cp, late = r.get("critical_path"), r.get("late_endpoints")
+    if cp:
+        print(f"  critical path {cp['from']} -> {cp['to']}: {cp['delay_ns']:.2f} ns, {cp['routing_ns']:.2f} of it routing"
+              + (f"; {late['late']} of {late['endpoints']} endpoint pins late (report.md lists them by register)"
+                 if late and late["late"] else ""))
     for line in spare_lane_notes(man.get("spare_lanes"), man["cycles_per_step"]["value"]):
         print(f"  {line}")
     if r.get("fmax_mhz"):
