@@ -47,6 +47,7 @@ from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
 from ..rtl_fixed import KEEP_APART_TAG    # registers Yosys must not merge (sim/synth.py)
+from .nodeword import delay
 
 __all__ = ["BlockRam", "LATENCY", "RAM_VARIANTS", "DP16KD_MODEL", "plan_blocks", "ram_record", "lut_rams"]
 
@@ -55,13 +56,6 @@ RAM_VARIANTS = ("sim", "ecp5")
 DP16KD_MODEL = Path(__file__).resolve().parent / "dp16kd.v"
 BYTE = 9
 MODES = ((36, 512), (18, 1024), (9, 2048))       # DP16KD data width, depth
-
-
-def _register(m: Module, value, name: str, data: bool = True) -> Signal:
-    """`value` registered; a data word (`data`) without reset, as hw/stream/nodeword.py `delay`."""
-    reg = Signal.like(value, name=name, **({"reset_less": True} if data else {}))
-    m.d.sync += reg.eq(value)
-    return reg
 
 
 def addr_bits(depth: int) -> int:
@@ -188,7 +182,7 @@ class BlockRam(wiring.Component):
                 # a write still sees it (both land a cycle later). Named to be kept apart in Yosys
                 # (sim/synth.py), which would otherwise share one write-enable decoder among copies all
                 # over the die (nextpnr, the 1e4 square at P = 5: 20.9 ns of routing, 41.3 MHz).
-                w_addr, w_data, w_en = (_register(m, v, f"{n}{KEEP_APART_TAG}", data=n != "w_en") for v, n in
+                w_addr, w_data, w_en = (delay(m, v, 1, f"{n}{KEEP_APART_TAG}", data=n != "w_en") for v, n in
                                         ((w_addr, "w_addr"), (w_data, "w_data"), (w_en, "w_en")))
             m.d.comb += [wp.addr.eq(w_addr), wp.data.eq(w_data),
                          wp.en.eq(w_en if self.segments > 1 else w_en[0])]
@@ -201,7 +195,7 @@ class BlockRam(wiring.Component):
             else:
                 rp = mem.read_port(domain="sync")
                 m.d.comb += rp.addr.eq(addr)
-            m.d.comb += data.eq(_register(m, rp.data, "r_word"))
+            m.d.comb += data.eq(delay(m, rp.data, 1, "r_word", data=True))
         return m
 
     # ---- DP16KD instances
