@@ -260,6 +260,7 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
                                                 progress=log is not None, router=router, seed=seed, placer=placer,
                                                 speed_grade=speed_grade)
             source = f"measured: nextpnr-ecp5 on {device}, speed grade {speed_grade} ({placed_dir})"
+            seed = res.get("seed", seed)               # the seed that routed (router2 moves on from a stall)
         fmax_mhz = res["fmax_mhz"]
         row["resources"] = {k: res[k] for k in ("luts", "flip_flops", "mult18x18", "block_rams")}
         row["place_and_route"] = {"router": router, "placer": placer, "seed": seed, "speed_grade": speed_grade,

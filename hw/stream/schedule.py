@@ -73,6 +73,10 @@ BUSY_FANOUT = 1       # the control's busy registered in the store and each elem
                       # which switch their memories' ports to the host while idle: they switch a cycle late,
                       # and the host sees the core busy that cycle longer. The first use of a port is
                       # LOOKAHEAD + 1 cycles after the start (the 1e4 square: 14 ns into far a memories)
+ELEM_FANOUT = 1       # the host's element access (position, data, write strobe) registered in each element lane
+                      # (hw/stream/core.py), each copy kept apart; the host port delays its other answers to
+                      # match (hw/stream/hostport.py). One register fed every lane's a memory (the 1e4 square at
+                      # f6412ba: the host's write data into a far lane's a memory, 14.6 ns of routing, 61.9 MHz)
 SAT_TAIL = 5          # from a node's last result stage to the core's saturation count register (lane
                       # register 2, SaturationCounter 3)
 MAX_WINDOW_GROUPS = 512      # the largest window: one 512 x 36 DP16KD column per 36 bits of a group

@@ -44,7 +44,9 @@ def run(args) -> int:
         print(f"  {len(moved)} shallow copies in LUT RAM to fit {args.device}'s "
               f"{man['block_ram_fit']['dp16kd_budget']} DP16KD: {', '.join(moved)}")
     timing = (f"Fmax {r['fmax_mhz']:.1f} MHz (constraint {args.clock_mhz} MHz, {'met' if r['timing_met'] else 'NOT met'}; "
-              f"seed {args.seed}, speed grade {args.speed_grade})"
+              f"seed {r['seed']}, speed grade {args.speed_grade})"
+              + (f"; router2 stalled with seed {', '.join(str(st['seed']) for st in r['stalled_seeds'])}"
+                 if r.get("stalled_seeds") else "")
               if args.pnr and r.get("fmax_mhz") is not None else
               "no place and route (--no-pnr): no Fmax" if not args.pnr else "no Fmax: see nextpnr.log")
     print(f"  {r['luts']} LUTs, {r['flip_flops']} FFs, {r['mult18x18']} 18x18 multipliers, {r['block_rams']} block RAMs; "
