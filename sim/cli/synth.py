@@ -24,6 +24,10 @@ def add_arguments(parser) -> None:
     full_argument(parser)
     parser.add_argument("--no-pnr", dest="pnr", action="store_false",
                         help="Yosys only: resources in minutes, no place and route and no Fmax")
+    parser.add_argument("--netlist-from", type=Path, metavar="DIR",
+                        help="place and route the Yosys netlist of an earlier `rheo synth` output directory of the "
+                             "same core (its Verilog byte for byte) instead of running Yosys again: another --seed, "
+                             "--router or --speed-grade in minutes less (make it once with --no-pnr)")
     lane_arguments(parser)
 
 
@@ -35,6 +39,7 @@ def run(args) -> int:
     check_device(args.device)
     check_block_rams(args.block_rams, args.device)
     check_tools(args.pnr)
+    check_netlist_from(args)
     bt = hardware_model(args)
     with output_directory(out) as tmp:             # whole or not at all
         r, man = _synthesize(args, bt, tmp, emit, synthesize)
@@ -45,6 +50,7 @@ def run(args) -> int:
               f"{man['block_ram_fit']['dp16kd_budget']} DP16KD: {', '.join(moved)}")
     timing = (f"Fmax {r['fmax_mhz']:.1f} MHz (constraint {args.clock_mhz} MHz, {'met' if r['timing_met'] else 'NOT met'}; "
               f"seed {r['seed']}, speed grade {args.speed_grade})"
+              + (f"; netlist of {r['netlist_from']}" if r.get("netlist_from") else "")
               + (f"; router2 stalled with seed {', '.join(str(st['seed']) for st in r['stalled_seeds'])}"
                  if r.get("stalled_seeds") else "")
               if args.pnr and r.get("fmax_mhz") is not None else
@@ -63,6 +69,19 @@ def run(args) -> int:
     return 0
 
 
+def check_netlist_from(args) -> None:
+    """`--netlist-from DIR`, before any work: a directory holding a netlist, with place and route to use it.
+    Whether its netlist is this core's is known after the Verilog is emitted (sim/synth.py reuse_netlist)."""
+    from golden.errors import BadArgument
+    src = args.netlist_from
+    if src is None:
+        return
+    if not args.pnr:
+        raise BadArgument("--netlist-from reuses a netlist for place and route; with --no-pnr there is nothing to do")
+    if not src.is_dir() or not (src / "synth.ys").is_file():
+        raise BadArgument(f"--netlist-from {src}: not an output directory of `rheo synth` (no synth.ys there)")
+
+
 def _synthesize(args, bt, out: Path, emit, synthesize):
     from sim.synth import block_ram_capacity
     man = emit.write(bt, out, lanes=args.lanes, node_lanes=args.node_lanes, core=args.core, ram="ecp5",
@@ -70,7 +89,8 @@ def _synthesize(args, bt, out: Path, emit, synthesize):
                      dp16kd_budget=block_ram_capacity(args.device) if args.block_rams is None else args.block_rams)
     r = synthesize(out / man["verilog"], man["top"], out, device=args.device, clock_mhz=args.clock_mhz,
                    seed=args.seed, progress=True, place_and_route=args.pnr, router=args.router,
-                   placer=args.placer, speed_grade=args.speed_grade)
+                   placer=args.placer, speed_grade=args.speed_grade,
+                   netlist_from=getattr(args, "netlist_from", None))
     r.update(scene=man["scene"], preset=man["preset"], full_featured=args.full, lanes=man["lanes"],
              elements=man["elements"], nodes=man["nodes"], units_present=[u["unit"] for u in man["units_present"]])
     cps = man["cycles_per_step"]["value"]
