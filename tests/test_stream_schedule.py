@@ -11,7 +11,8 @@ and retirement cycle of every group, the period T, the window Wg, the prologue A
 of every memory's writes and reads, and checks: every window read (items', node lanes') sees the group
 of its own step, every store read sees the previous step's result, every element's a its previous
 step's value, every contribution is written before its node retires and no other node's write lands in
-its ring word in between (so a ring needs no clearing), one fill, one retirement and one item per lane
+its ring word in between (so a ring needs no clearing; a node's result lands in the store STORE = 1 cycle after
+its result stage), one fill, one retirement and one item per lane
 per cycle. T - 1 (or Wg / 2) must break something: the schedule's T and window are the smallest.
 """
 from __future__ import annotations
@@ -32,6 +33,7 @@ from conftest import scene_system
 MEM, FILL, READ, RMW = 2, 2, 1, 3   # block RAM read latency; the fill's registers before the window copies;
                                     # an item's window slot registered before its copy; a force ring word is
                                     # written RMW cycles after its read
+STORE = 1                           # a node lane's result lands in the store a cycle later (registered in the bank)
 
 
 class Violation(AssertionError):
@@ -119,7 +121,7 @@ def replay(order, P, Q, lat, T, Wg, fill, retire, A0, steps=3, Pp=None):
                     raise Violation(f"ring {key[:3]}: node {n} step {k}'s word is overwritten by {foreign[0]}")
     # node store: the fill of step k reads what step k - 1 retired
     for g in range(Gs):
-        writes = sorted((t0(k) + int(retire[g]) + lat.node, k) for k in range(steps))
+        writes = sorted((t0(k) + int(retire[g]) + lat.node + STORE, k) for k in range(steps))
         for k in range(steps):
             got = _latest(writes, t0(k) + int(fill[g]))
             if got != (k - 1 if k else None):

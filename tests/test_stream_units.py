@@ -84,10 +84,12 @@ def test_node_store_groups_and_host_fields():
     def sample(t, get):
         log.append((get(dut.rd_data), get(dut.h_rdata)))
         p = plan[t]
-        # reference: the read presented now answers in t + 2 (from the words as they are now)
+        # reference: the read presented now answers in t + 2 (from the words as they are now); the node
+        # lanes' write presented in t - 1 lands now (STORE_WRITE = 1: registered in each bank, busy or not)
         if p["busy"]:
             expect[t + 2] = ("rd", sum(mem[q][p["rd"]] << (q * nb) for q in range(Q)))
-            writes = [(q, p["wr"], (p["wdata"] >> (q * nb)) & ((1 << nb) - 1)) for q in range(Q) if p["wen"] >> q & 1]
+            w = plan[t - 1]
+            writes = [(q, w["wr"], (w["wdata"] >> (q * nb)) & ((1 << nb) - 1)) for q in range(Q) if w["wen"] >> q & 1]
             collide = any(a == p["rd"] for _, a, _ in writes)
         else:
             expect[t + 2] = ("h", (mem[p["h_bank"]][p["h_addr"]] >> (p["h_field"] * fb)) & ((1 << fb) - 1))
@@ -279,14 +281,16 @@ def test_saturation_counter_counts_and_flags():
 
 # ------------------------------------------------------------------------------------------ HostPort
 
-@pytest.mark.parametrize("elem_fanout", [0, 1])
-def test_host_port_decodes_registers_and_memories(elem_fanout):
-    """The memories answer MEMORY = 2 cycles after the port presents an address (the element lanes' a
-    cycle later per register in front of them): each word is driven in that cycle only, junk otherwise."""
+@pytest.mark.parametrize("elem_fanout, node_fanout", [(0, 0), (1, 0), (0, 1), (1, 1)])
+def test_host_port_decodes_registers_and_memories(elem_fanout, node_fanout):
+    """The memories answer MEMORY = 2 cycles after the port presents an address (a cycle later per register
+    in front of them: the element lanes', the store's): each word is driven in that cycle only, junk
+    otherwise."""
     hm = HostMap(2, np.array([0, 1, 0, 1]), np.array([0, 0, 1, 1]), 2, 2,
                  np.array([0, 1, 0]), np.array([0, 0, 1]), 2, 2)
     fields = [SQ(4, 14)] * 2 + [SQ(-2, 20)] * 2
-    dut = HostPort(hm, fields, SQ(2, 16), 3, elem_fanout)
+    dut = HostPort(hm, fields, SQ(2, 16), 3, elem_fanout, node_fanout)
+    lag = max(elem_fanout, node_fanout)
     node_word = 0x3FFFF        # an 18-bit field of all ones: -1
     a_word = 0x3FFFE
     reads = [Reg.ID, Reg.RUN, Reg.STATUS, Reg.STEP, Reg.SATURATIONS, Reg.SATURATION_FLAGS, Reg.CYCLES,
@@ -295,7 +299,7 @@ def test_host_port_decodes_registers_and_memories(elem_fanout):
     seq = [("w", a, d) for a, d in writes] + [("r", a, 0) for a in reads] + [("n", 0, 0)] * 6
     strobes, answers = [], []
 
-    t_node = seq.index(("r", reads[-2], 0)) + 1 + 2                      # registered on entry, then MEMORY
+    t_node = seq.index(("r", reads[-2], 0)) + 1 + node_fanout + 2       # registered on entry, then MEMORY
     t_elem = seq.index(("r", reads[-1], 0)) + 1 + elem_fanout + 2
     junk = 0x15555
 
@@ -322,8 +326,8 @@ def test_host_port_decodes_registers_and_memories(elem_fanout):
     assert (strobes[5]["elem_we"], strobes[5]["elem_pos"]) == (0b01, 1)
     m32 = 0xFFFFFFFF
     assert answers == [ID_WORD, 3, 2, 12, 13, 5, 99, (-1) & m32, (-2) & m32]
-    assert dut.read_latency == 5 + elem_fanout
-    assert valid_at == [len(writes) + k + 5 + elem_fanout for k in range(len(reads))]
+    assert dut.read_latency == 5 + lag
+    assert valid_at == [len(writes) + k + 5 + lag for k in range(len(reads))]
 
 
 # ------------------------------------------------------------------------------------------ Control

@@ -381,3 +381,33 @@ def test_only_control_state_has_a_reset(stream_netlist):
     assert len(on_reset) < 0.1 * len(ffs), (len(on_reset), len(ffs))
     values = ("_line_", "_dly_", "_mul_", "_sel_", "_sub_", "_add_", "_neg_", "fill_data", "ring_i__data", "_lines")
     assert not [n for n in on_reset if any(v in n for v in values)], [n for n in on_reset if any(v in n for v in values)][:5]
+
+
+def test_memory_writes_are_registered_beside_their_memory(stream_netlist):
+    """An element lane's new a and the node lanes' store write each go through a register of their own
+    (hw/stream/schedule.py A_WRITE, STORE_WRITE) and then only the pipeline/host multiplexer, one LUT, into
+    the block RAM's write port: each of those flip-flops feeds that LUT alone, so the placer can put it
+    beside the memory (the 1e4 square at f6412ba: 73 late pins on the a memories' ports, 57 on the store's)."""
+    nets, cells = stream_netlist
+    driver, fanout = {}, {}
+    for name, c in cells.items():
+        for pin, d in c["port_directions"].items():
+            for b in c["connections"][pin]:
+                if d == "output":
+                    driver[b] = (name, c)
+                else:
+                    fanout[b] = fanout.get(b, 0) + 1
+    for memory, registers in (("el0.el0_a.", ("el0.el0_a_wdata_d1", "el0.el0_a_waddr_d1")),
+                              ("el1.el1_a.", ("el1.el1_a_wdata_d1", "el1.el1_a_waddr_d1")),
+                              ("store.bank0.", ("store.bank0_wr_data_d1", "store.bank0_wr_addr_keep_apart_d1"))):
+        mine = {b for r in registers for b in nets[r]["bits"] if b not in ("0", "1")}
+        assert mine and all(driver[b][1]["type"] == "TRELLIS_FF" and fanout[b] == 1 for b in mine), memory
+        reached = set()                   # what reaches the write pins (port A; B's data too, 36 bits wide) via one LUT
+        for name, c in cells.items():
+            if c["type"] == "DP16KD" and name.startswith(memory):
+                for pin, bits in c["connections"].items():
+                    if pin.startswith(("DIA", "DIB", "ADA")) and bits[0] not in ("0", "1"):
+                        lut = driver[bits[0]][1]
+                        assert lut["type"] == "LUT4", (name, pin, lut["type"])
+                        reached |= {lut["connections"][p][0] for p in "ABCD"} & mine
+        assert reached == mine, (memory, len(mine - reached))

@@ -18,7 +18,7 @@ from ..hostmap import HostMap
 from .kernels import dry_run_element, dry_run_node, dry_run_pair, dry_run_probe_sample, max_count
 from .nodeword import NodeWord
 from .order import lane_items, stream_order
-from .schedule import Latencies, build_schedule, spare_lanes
+from .schedule import A_WRITE, Latencies, build_schedule, spare_lanes
 
 
 class NotStreamable(NotSupported):
@@ -76,7 +76,7 @@ class StreamConfig:
         self.node_dry = dry_run_node(p, formats, units, formats["fe"].width + 8)
         self.probe_dry = dry_run_probe_sample(p, formats, units) if p.probe is not None else None
         self.latencies = Latencies(element=self.element_dry.stage,
-                                   element_state=self.element_dry.outputs["state_stage"],
+                                   element_state=self.element_dry.outputs["state_stage"] + A_WRITE,
                                    node=self.node_dry.stage,
                                    pair=self.pair_dry.stage if self.pair_dry is not None else 0)
         self._window_kw = {} if max_window_groups is None else {"max_window_groups": max_window_groups}

@@ -49,7 +49,7 @@ from .nodeword import delay, segment
 from .pair import PairLane
 from .probeport import ProbePort
 from .saturation import SaturationCounter
-from .schedule import BUSY_FANOUT, ELEM_FANOUT, ISSUE_FANOUT, RETIRE_FANOUT
+from .schedule import BUSY_FANOUT, ELEM_FANOUT, ISSUE_FANOUT, NODE_FANOUT, RETIRE_FANOUT
 from .store import NodeStore
 from .tables import share as share_tables
 from .window import NodeWindow
@@ -83,7 +83,8 @@ class StreamCore(wiring.Component):
         self.saturation = SaturationCounter([q for lane in lanes for q in lane.quantities])
         self.sat_quantities = self.saturation.quantities
         fields = [cfg.formats["x"]] * D + [cfg.formats["u"]] * D
-        self.hostport = HostPort(cfg.host_map, fields, cfg.formats["a"], len(self.sat_quantities), ELEM_FANOUT)
+        self.hostport = HostPort(cfg.host_map, fields, cfg.formats["a"], len(self.sat_quantities), ELEM_FANOUT,
+                                 NODE_FANOUT)
         self.const_saturations = {}
         for dry in (cfg.element_dry, cfg.pair_dry, cfg.node_dry):
             for k, n in (dry.ar.const_sat.items() if dry is not None else ()):
@@ -202,10 +203,14 @@ class StreamCore(wiring.Component):
                      hp.cycles.eq(ctl.cycles), hp.sat_count.eq(sat.count), hp.sat_flags.eq(sat.flags),
                      sat.clear.eq(hp.sat_clear)]
 
-        # node store: the fill reads, the node lanes write, the host while idle
+        # node store: the fill reads, the node lanes write, the host while idle (its access registered in
+        # front of the store, NODE_FANOUT; the host port expects the store's word that much later)
+        def node_host(what, data=True):
+            return delay(m, getattr(hp, f"node_{what}"), NODE_FANOUT, f"store_host_{what}", data=data)
         m.d.comb += [store.busy.eq(busy_at("store")), store.rd_addr.eq(ctl.fill.group),
-                     store.h_addr.eq(hp.node_addr), store.h_bank.eq(hp.node_bank), store.h_field.eq(hp.node_field),
-                     store.h_wdata.eq(hp.node_wdata), store.h_we.eq(hp.node_we), hp.node_rdata.eq(store.h_rdata)]
+                     store.h_addr.eq(node_host("addr")), store.h_bank.eq(node_host("bank")),
+                     store.h_field.eq(node_host("field")), store.h_wdata.eq(node_host("wdata")),
+                     store.h_we.eq(node_host("we", data=False)), hp.node_rdata.eq(store.h_rdata)]
         # the fill: the store's group, LATENCY cycles after its read, into every window copy
         m.d.comb += [win.fill_addr.eq(delay(m, ctl.fill.slot, LATENCY, "fill_slot", data=True)),
                      win.fill_en.eq(delay(m, ctl.fill.valid, LATENCY, "fill_valid")),

@@ -11,7 +11,8 @@ Item k of the element stream runs in lane k % P at slot k // P of every step (hw
              operation in one cycle)
   stage 6    x, u of nodes i and j from the window (the slots registered in front of its copies at 3)
   ...        hw/datapath.py `element_kernel` through PipeArith (hw/stream/kernels.py), one stage per
-             operation; the new a is written back at its stage (`state_stage`)
+             operation; the new a is written back A_WRITE cycles after its stage (`state_stage`:
+             registered beside the a memory, hw/stream/schedule.py)
   `stage`    contributions: +fe to node i, -fe to node j, presented by node: the lower node's to the
              lane's ForceRing (`contrib_lo`), the higher node's to its RunSum (`contrib_hi`: the stream is
              sorted by higher node, so a lane's contributions to it come in runs; hw/stream/forcering.py)
@@ -37,6 +38,7 @@ from .kernels import A_STAGE, ROM_STAGE, build_element, first_flags, last_flags
 from .tables import records as table_records
 from .lanerom import LaneRom
 from .nodeword import bits_for, delay
+from .schedule import A_WRITE
 from .window import NodeReadSignature
 
 SAT_BITS = 8
@@ -173,14 +175,18 @@ class ElementLane(wiring.Component):
             for k in range(cfg.dim):
                 m.d.comb += port.value[k * fb:(k + 1) * fb].eq(Mux(take_j, fe_j[k], fe_i[k]))
 
-        # the a memory: read at issue, written at its stage; the host's while idle
+        # the a memory: read at issue, written A_WRITE cycles after its stage (registered beside the memory,
+        # before the multiplexer); the host's while idle
         new_a = built.outputs["a"]
         m.d.comb += a_mem.r_addr.eq(Mux(self.busy, slot, self.host_pos))
         if self.has_a and new_a is not None:
             sa = self.state_stage
-            m.d.comb += [a_mem.w_addr.eq(Mux(self.busy, ar.delay(slot, 0, sa), self.host_pos)),
-                         a_mem.w_data.eq(Mux(self.busy, ar.at(new_a, sa), self.host_wdata)),
-                         a_mem.w_en.eq(Mux(self.busy, ar.valid_at(sa), self.host_we))]
+            w_addr = delay(m, ar.delay(slot, 0, sa), A_WRITE, f"{name}_a_waddr", data=True)
+            w_data = delay(m, ar.at(new_a, sa), A_WRITE, f"{name}_a_wdata", data=True)
+            w_en = delay(m, ar.valid_at(sa), A_WRITE, f"{name}_a_wen")
+            m.d.comb += [a_mem.w_addr.eq(Mux(self.busy, w_addr, self.host_pos)),
+                         a_mem.w_data.eq(Mux(self.busy, w_data, self.host_wdata)),
+                         a_mem.w_en.eq(Mux(self.busy, w_en, self.host_we))]
         else:
             m.d.comb += [a_mem.w_addr.eq(self.host_pos), a_mem.w_data.eq(self.host_wdata),
                          a_mem.w_en.eq(self.host_we & ~self.busy)]

@@ -2,14 +2,14 @@
 
 Word addresses, 32-bit data. The bus is registered on entry (address, data, strobes: the decoding
 and its fan-out to the control's counters and every lane's memory then start at flip-flops, not at the
-host's logic); a write acts a cycle after its request (an element write `elem_fanout` cycles later: each
-element lane registers the host's access, hw/stream/core.py), a read answers `read_latency` =
-READ_LATENCY + 2 + elem_fanout cycles after it, `r_valid` marking the answer: the registered request
-presents the decoded address to the memories (block RAMs, data two cycles later; the element lanes' a
-cycle later per register in front of them) while the address is registered, decoded into one select per
-answer and the selects registered; the memories' words and the registers' values are registered on entry
-(the selects with them; everything but the element lanes' words elem_fanout cycles longer, so that every
-answer is sampled in the same cycle), the answer (a register, or the memory word sign-extended from its
+host's logic); a write acts a cycle after its request (an element write `elem_fanout` cycles later, a node
+write `node_fanout` cycles later: each element lane and the node store register the host's access,
+hw/stream/core.py), a read answers `read_latency` = READ_LATENCY + 2 + max(elem_fanout, node_fanout) cycles
+after it, `r_valid` marking the answer: the registered request presents the decoded address to the memories
+(block RAMs, data two cycles later; a cycle later per register in front of them) while the address is
+registered, decoded into one select per answer and the selects registered; the memories' words and the
+registers' values are registered on entry (the selects with them, each answer held until the latest
+memory's, so that every answer is sampled in the same cycle), the answer (a register, or the memory word sign-extended from its
 format) is selected then and registered once more. Requests keep their order: a read sees
 every write requested before it. Node state: field f of the node in store
 bank `slot`, word `word` (the renumbering's placement, StreamConfig.host_map); element state: field 0
@@ -34,17 +34,20 @@ HostSignature = wiring.Signature({
 
 
 class HostPort(wiring.Component):
-    def __init__(self, host_map, node_fields: list, a_shape, sat_flags: int, elem_fanout: int = 0):
+    def __init__(self, host_map, node_fields: list, a_shape, sat_flags: int, elem_fanout: int = 0,
+                 node_fanout: int = 0):
         """node_fields: the hw.fixed.Shape of each node field (x_0 .. u_{D-1}); a_shape: that of a;
-        elem_fanout: the registers between `elem_*` and the element lanes' a memories (both ways)."""
-        if not isinstance(elem_fanout, int) or elem_fanout < 0:
-            raise ValueError(f"elem_fanout must be a count of registers (an int >= 0), got {elem_fanout!r}")
+        elem_fanout, node_fanout: the registers between `elem_*` and the element lanes' a memories, between
+        `node_*` and the node store (both ways)."""
+        for name, v in (("elem_fanout", elem_fanout), ("node_fanout", node_fanout)):
+            if not isinstance(v, int) or v < 0:
+                raise ValueError(f"{name} must be a count of registers (an int >= 0), got {v!r}")
         self.map, self.node_fields, self.a_shape = host_map, list(node_fields), a_shape
-        self.elem_fanout = elem_fanout
+        self.elem_fanout, self.node_fanout = elem_fanout, node_fanout
         hm = host_map
         fbits = max(s.width for s in node_fields)
         self.P = hm.lanes
-        self.read_latency = READ_LATENCY + 2 + elem_fanout
+        self.read_latency = READ_LATENCY + 2 + max(elem_fanout, node_fanout)
         super().__init__({
             "bus": In(HostSignature),
             "busy": In(1), "steps_left": In(32), "step": In(32), "sat_count": In(32),
@@ -98,14 +101,14 @@ class HostPort(wiring.Component):
         # the memories' words (from block RAMs all over the die) and the registers registered on entry,
         # the selects a cycle later with them: the store's bank and field multiplexers, the route and the
         # answer's multiplexer were one cycle (the 1e4 square at speed grade 8: 11.6 ns, its critical path)
-        # (all but the element lanes' words elem_fanout cycles longer: theirs left a cycle later per register)
-        f = self.elem_fanout
+        # (each held until the latest memory's word: a memory's left a cycle later per register on its way)
+        f = max(self.elem_fanout, self.node_fanout)
 
         def entered(v, name, cycles=1 + f):
             return delay(m, v, cycles, f"{name}_in")
         regs = {reg: entered(v, reg.name.lower()) if not isinstance(v, int) else v for reg, v in regs.items()}
-        node_rdata = entered(self.node_rdata, "node_rdata")
-        elem_rdata = [entered(v, f"elem_rdata{l}", 1) for l, v in enumerate(self.elem_rdata)]
+        node_rdata = entered(self.node_rdata, "node_rdata", 1 + f - self.node_fanout)
+        elem_rdata = [entered(v, f"elem_rdata{l}", 1 + f - self.elem_fanout) for l, v in enumerate(self.elem_rdata)]
         is_reg, is_field, is_lane = ([entered(sel, sel.name) for sel in sels] for sels in (is_reg, is_field, is_lane))
         r_data = Signal(32)
         for sel, value in zip(is_reg, regs.values()):

@@ -17,7 +17,7 @@ the fill reads a group from the node store, a node lane retires one node of a gr
              (F = FILL_FANOUT), written into every copy at t_f[g] + M + F, readable by a read presented
              from t_f[g] + M + F + 1
   retire     t_r[g]: the node lanes present group g's window and force ring addresses; results at
-             t_r[g] + `Latencies.node`, written into the node store in that cycle (the control retires
+             t_r[g] + `Latencies.node`, written into the node store S = STORE_WRITE cycles later (the control retires
              at t_r[g] - RETIRE_FANOUT: the node lanes, the rings and the window register the retirement)
 
 Rules (a read presented in the cycle of a write to the same word sees neither value for sure, so every
@@ -27,7 +27,7 @@ read the data path uses is strictly before or after the write it depends on):
   retire     t_r[g] = max(last contribution write of g + 1, t_f[g] + M + F + 1, t_r[g - 1] + 1): as early as
              possible, in group order, one group a cycle
   period     T = max(C, a write stage + 1 (an element's a is written before the next step reads it),
-             fill span, retirement span (each at most one period), max_g t_r[g] + node + 1 - t_f[g]
+             fill span, retirement span (each at most one period), max_g t_r[g] + node + S + 1 - t_f[g]
              (a node is written into the store before the next step's fill reads it))
   window     Wg groups (W = Wg Q nodes, a power of two groups): the smallest with, for every group g and
              the virtual group g + Wg that takes its slot next (in this step or a later one):
@@ -77,11 +77,24 @@ ELEM_FANOUT = 1       # the host's element access (position, data, write strobe)
                       # (hw/stream/core.py), each copy kept apart; the host port delays its other answers to
                       # match (hw/stream/hostport.py). One register fed every lane's a memory (the 1e4 square at
                       # f6412ba: the host's write data into a far lane's a memory, 14.6 ns of routing, 61.9 MHz)
+NODE_FANOUT = 1       # the host's node access (address, bank, field, data, write strobe) registered in front of the
+                      # node store (hw/stream/core.py); the host port delays its other answers to match. The
+                      # host's decoding, the store's bank and field enables and its pipeline/host multiplexer
+                      # were one cycle
+A_WRITE = 1           # an element lane's new a registered before its a memory's pipeline/host multiplexer
+                      # (hw/stream/element.py): written A_WRITE cycles after its stage (`Latencies.element_state`
+                      # counts them). The pipeline's register and the multiplexer into a far block RAM were one
+                      # cycle (the 1e4 square at f6412ba: 73 late pins on the a memories' ports)
+STORE_WRITE = 1       # the node lanes' store write registered in each bank before its pipeline/host multiplexer
+                      # (hw/stream/store.py): a node lands in the store STORE_WRITE cycles after its result
+                      # (the square at f6412ba: 57 late pins on the store's write)
 SAT_TAIL = 5          # from a node's last result stage to the core's saturation count register (lane
                       # register 2, SaturationCounter 3)
 MAX_WINDOW_GROUPS = 512      # the largest window: one 512 x 36 DP16KD column per 36 bits of a group
 NONE = np.iinfo(np.int64).max // 4
 assert BUSY_FANOUT <= LOOKAHEAD, "a unit's busy copy must be set before its memories' first pipeline use"
+assert max(ELEM_FANOUT, NODE_FANOUT) <= BUSY_FANOUT, "a host write accepted while idle must land before busy rises"
+assert STORE_WRITE < SAT_TAIL, "the last node must land in the store before the run ends (its drain)"
 
 
 class BandwidthError(NotSupported):
@@ -92,7 +105,7 @@ class BandwidthError(NotSupported):
 class Latencies:
     """Pipeline stages the schedule relies on (each measured by a dry run of its pipeline)."""
     element: int          # stage of the element pipeline's force contributions (issue = stage 0)
-    element_state: int    # stage at which the element lane writes its new a (<= element)
+    element_state: int    # cycle (from issue) at which the element lane's new a lands in its a memory
     node: int             # stage of the node pipeline's results (retirement = stage 0)
     pair: int = 0         # stage of the pair pipeline's force contributions (0: no pairs)
 
@@ -183,7 +196,8 @@ class StreamSchedule:
             "fill_start": self.fill_start, "retire_start": self.retire_start, "drain": self.drain,
             "run_cycles": "A0 + (n - 1) T + drain + 1",
             "latencies": {"memory": MEMORY, "fill_fanout": FILL_FANOUT, "read_fanout": READ_FANOUT,
-                          "retire_fanout": RETIRE_FANOUT, "rmw_write": RMW, "lookahead": LOOKAHEAD, "saturation_tail": SAT_TAIL,
+                          "retire_fanout": RETIRE_FANOUT, "rmw_write": RMW, "a_write": A_WRITE, "store_write": STORE_WRITE,
+                          "lookahead": LOOKAHEAD, "saturation_tail": SAT_TAIL,
                           "element": lat.element, "element_state": lat.element_state, "pair": lat.pair,
                           "node": lat.node},
         }
@@ -256,7 +270,7 @@ def build_schedule(order: StreamOrder, lanes: int, node_lanes: int, lat: Latenci
         "a_state": lat.element_state + 1 if E else 1,
         "fill_span": int(fill[-1] - fill[0] + 1),
         "retire_span": int(retire[-1] - retire[0] + 1),
-        "node_store": int(np.max(retire + lat.node + 1 - fill)),
+        "node_store": int(np.max(retire + lat.node + STORE_WRITE + 1 - fill)),
     }
     T = max(bounds.values())
     binding = max(bounds, key=lambda k: (bounds[k], k == "items"))

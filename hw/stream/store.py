@@ -5,7 +5,8 @@ holds one group of Q nodes. Each bank is a `BlockRam` of Gs words (read latency 
 segment per node field, so that the host can write a single x_k or u_k.
 
 While busy, the fill reads group `rd_addr` (all banks, `rd_data` two cycles later) and the node lanes
-write group `wr_addr` (bank q when `wr_en[q]`). While idle, the host reads or writes field `h_field`
+write group `wr_addr` (bank q when `wr_en[q]`), which lands STORE_WRITE cycles later: each bank registers
+the write before its pipeline/host multiplexer (hw/stream/schedule.py). While idle, the host reads or writes field `h_field`
 of the node in bank `h_bank`, word `h_addr`; `h_rdata` (the field, raw) two cycles after the address.
 One read and one write per bank and cycle: the fill reads group by group and the node lanes retire
 group by group, each at most one a cycle (hw/stream/schedule.py).
@@ -16,8 +17,10 @@ from amaranth.hdl import Cat, Module, Mux, Signal
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
+from ..rtl_fixed import KEEP_APART_TAG
 from .bram import LATENCY, BlockRam, ram_record
 from .nodeword import NodeWord, bits_for, delay, segment
+from .schedule import STORE_WRITE
 
 
 class NodeStore(wiring.Component):
@@ -49,12 +52,15 @@ class NodeStore(wiring.Component):
             m.submodules[f"bank{q}"] = bank
             host_hit = self.h_we & (self.h_bank == q)
             field_en = Cat(*[host_hit & (self.h_field == f) for f in range(w.fields)])
+            # the node lanes' write registered in each bank (STORE_WRITE), its address kept apart
+            wr_addr = delay(m, self.wr_addr, STORE_WRITE, f"bank{q}_wr_addr{KEEP_APART_TAG}", data=True)
+            wr_data = delay(m, segment(self.wr_data, q, w.bits, Q), STORE_WRITE, f"bank{q}_wr_data", data=True)
+            wr_en = delay(m, self.wr_en[q], STORE_WRITE, f"bank{q}_wr_en")
             m.d.comb += [
                 bank.r_addr.eq(Mux(self.busy, self.rd_addr, self.h_addr)),
-                bank.w_addr.eq(Mux(self.busy, self.wr_addr, self.h_addr)),
-                bank.w_data.eq(Mux(self.busy, segment(self.wr_data, q, w.bits, Q),
-                                   self.h_wdata.replicate(w.fields))),
-                bank.w_en.eq(Mux(self.busy, self.wr_en[q].replicate(w.fields), field_en)),
+                bank.w_addr.eq(Mux(self.busy, wr_addr, self.h_addr)),
+                bank.w_data.eq(Mux(self.busy, wr_data, self.h_wdata.replicate(w.fields))),
+                bank.w_en.eq(Mux(self.busy, wr_en.replicate(w.fields), field_en)),
             ]
             rdata.append(bank.r_data)
         m.d.comb += self.rd_data.eq(Cat(*rdata))
