@@ -9,8 +9,8 @@ after it, `r_valid` marking the answer: the registered request presents the deco
 (block RAMs, data two cycles later; a cycle later per register in front of them) while the address is
 registered, decoded into one select per answer and the selects registered; the memories' words and the
 registers' values are registered on entry (the selects with them, each answer held until the latest
-memory's, so that every answer is sampled in the same cycle), the answer (a register, or the memory word sign-extended from its
-format) is selected then and registered once more. Requests keep their order: a read sees
+memory's, so that every answer is sampled in the same cycle), the answer (a register, or the memory word
+sign-extended from its format) is selected then and registered once more. Requests keep their order: a read sees
 every write requested before it. Node state: field f of the node in store
 bank `slot`, word `word` (the renumbering's placement, StreamConfig.host_map); element state: field 0
 (a) of item `pos` of element lane `lane`. Memory writes while busy are ignored and memory reads while
