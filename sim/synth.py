@@ -42,9 +42,12 @@ tmp_path, for one) would not reach the host, while relative ones (through its ".
 
    router2 can stall: its overused wires stop falling and climb for an hour (the 1e4 square: seed 2 of
    one netlist fewest 495 at iteration 42, 1,781 at 59, while seed 2 of the previous netlist routed).
-   The log is watched while nextpnr runs (`RouterWatch`): STALL_ITERATIONS iterations without a new
-   fewest count and a count at least STALL_RATIO times the fewest stop it, and place and route starts
-   again with the next seed, at most STALL_RETRIES times. synth.json's "seed" is the seed that
+   It can also grind: iterations of minutes each, the count hovering above its fewest (the same
+   square, seed 6 of the next netlist: fewest 4,457 at iteration 18, 5,396 at 21 after 2 h 14 min;
+   routed runs take under a minute an iteration). The log is watched while nextpnr runs
+   (`RouterWatch`): STALL_ITERATIONS iterations without a new fewest count and a count at least
+   STALL_RATIO times the fewest, or STALL_MINUTES of routing without a new fewest, stop it, and place
+   and route starts again with the next seed, at most STALL_RETRIES times. synth.json's "seed" is the seed that
    routed, "stalled_seeds" the ones given up (with the counts that gave them up).
 
    No bitstream/textual config is written (it is not needed for resources or timing).
@@ -190,31 +193,48 @@ def _run(step: str, argv: list[str], log: Path, cwd: Path, timeout_s: float) -> 
 
 STALL_ITERATIONS = 15    # router2 iterations without a new fewest overused-wire count ...
 STALL_RATIO = 2.0        # ... and a count at least this many times the fewest: a stall
+STALL_MINUTES = 30.0     # or this long without a new fewest count, whatever the count: a grind
 STALL_RETRIES = 2        # seeds tried after the first stalls (seed + 1, seed + 2)
 WATCH_POLL_S = 5.0       # how often the log of a running nextpnr is read
 _ROUTER2_ITER = re.compile(r"^Info:\s+iter=(\d+) wires=\d+ overused=(\d+) ", re.M)
 
 
 class RouterWatch:
-    """router2's progress from its log lines (`iter=N wires=W overused=O ...`): `feed(text)` takes the log
-    so far and returns a stall (a dict: iteration, overused, fewest, fewest_at) or None; `last` is the
-    latest (iteration, overused)."""
+    """router2's progress from its log lines (`iter=N wires=W overused=O ...`): `feed(text, now)` takes the
+    log so far and the time in seconds (time.monotonic() unless given) and returns a stall (a dict:
+    iteration, overused, fewest, fewest_at, and "minutes" since the fewest when it is a grind) or None;
+    `last` is the latest (iteration, overused). An iteration's time is that of the feed that first saw it."""
 
-    def __init__(self, iterations: int = STALL_ITERATIONS, ratio: float = STALL_RATIO):
-        self.iterations, self.ratio = iterations, ratio
-        self.fewest, self.fewest_at, self.last = None, None, None
+    def __init__(self, iterations: int = STALL_ITERATIONS, ratio: float = STALL_RATIO,
+                 minutes: float = STALL_MINUTES):
+        self.iterations, self.ratio, self.minutes = iterations, ratio, minutes
+        self.fewest, self.fewest_at, self.fewest_time, self.last = None, None, None, None
 
-    def feed(self, log_text: str) -> dict | None:
+    def feed(self, log_text: str, now: float | None = None) -> dict | None:
+        now = time.monotonic() if now is None else now
         for m in _ROUTER2_ITER.finditer(log_text):
             it, over = int(m.group(1)), int(m.group(2))
             if self.last is not None and it <= self.last[0]:
                 continue                                  # seen already
             self.last = (it, over)
             if self.fewest is None or over < self.fewest:
-                self.fewest, self.fewest_at = over, it
+                self.fewest, self.fewest_at, self.fewest_time = over, it, now
             elif it - self.fewest_at >= self.iterations and over >= self.ratio * max(self.fewest, 1):
-                return {"iteration": it, "overused": over, "fewest": self.fewest, "fewest_at": self.fewest_at}
+                return self._stall()
+        if self.fewest_time is not None and now - self.fewest_time >= 60 * self.minutes:
+            return {**self._stall(), "minutes": round((now - self.fewest_time) / 60, 1)}
         return None
+
+    def _stall(self) -> dict:
+        it, over = self.last
+        return {"iteration": it, "overused": over, "fewest": self.fewest, "fewest_at": self.fewest_at}
+
+
+def stall_text(st: dict) -> str:
+    """A stall in words: where router2 was and its fewest count (and how long since, for a grind)."""
+    since = f", none fewer for {st['minutes']:g} min" if "minutes" in st else ""
+    return (f"{st['overused']:,} overused wires at iteration {st['iteration']}, fewest {st['fewest']:,} at "
+            f"{st['fewest_at']}{since}")
 
 
 def _run_watched(step: str, argv: list[str], log: Path, cwd: Path, timeout_s: float, watch: RouterWatch,
@@ -277,12 +297,10 @@ def place_and_route_seeds(argv_of_seed, log: Path, cwd: Path, timeout_s: float, 
             return s, stalls
         stalls.append({"seed": s, **stall})
         shutil.copyfile(log, cwd / f"nextpnr-seed{s}-stalled.log")
-        say(f"nextpnr: router2 stalled with seed {s} (iteration {stall['iteration']}: {stall['overused']:,} "
-            f"overused wires, fewest {stall['fewest']:,} at {stall['fewest_at']})"
+        say(f"nextpnr: router2 stalled with seed {s} ({stall_text(stall)})"
             + (f"; trying seed {s + 1}" if s < seed + retries else ""))
     raise SynthesisError("nextpnr: router2 stalled with every seed tried: " + "; ".join(
-        f"seed {st['seed']}: {st['overused']:,} overused wires at iteration {st['iteration']}, fewest "
-        f"{st['fewest']:,} at {st['fewest_at']}" for st in stalls)
+        f"seed {st['seed']}: {stall_text(st)}" for st in stalls)
         + f" (logs nextpnr-seedN-stalled.log in {cwd}); try other seeds (--seed) or fewer lanes")
 
 
@@ -772,8 +790,7 @@ def render_markdown(r: dict) -> str:
                   f"timing {verdict}")
         if r.get("stalled_seeds"):
             timing += f" (seed {r['seed']}; router2 stalled with " + ", ".join(
-                f"seed {st['seed']} ({st['overused']:,} overused wires at iteration {st['iteration']}, fewest "
-                f"{st['fewest']:,} at {st['fewest_at']})" for st in r["stalled_seeds"]) + ")"
+                f"seed {st['seed']} ({stall_text(st)})" for st in r["stalled_seeds"]) + ")"
     if r.get("netlist_from"):
         timing += f"; the Yosys netlist of `{r['netlist_from']}`"
     lines += [timing, "", "| Resource | Used | Available | % |", "|---|---:|---:|---:|"]

@@ -5,7 +5,7 @@ import time
 
 import pytest
 
-from sim.synth import STALL_ITERATIONS, RouterWatch, SynthesisError, place_and_route_seeds
+from sim.synth import STALL_ITERATIONS, STALL_MINUTES, RouterWatch, SynthesisError, place_and_route_seeds, stall_text
 
 # overused wires by iteration (1 ..), router2 on the 1e4 square at P = 6 (s13 netlist, seed 2): measured
 STALLED = [62668, 37749, 24909, 17605, 13026, 10590, 8656, 7329, 6307, 5533, 4594, 4085, 3536, 3182, 2802, 2659,
@@ -42,6 +42,41 @@ def test_the_log_read_again_counts_each_iteration_once():
         if stall is not None:
             break
     assert stall is not None and stall["iteration"] == 57
+
+
+# a grind: router2 on the same square (s14 netlist, seed 6), about 6 minutes an iteration, the count hovering
+# above its fewest (4,457 at iteration 18 and 5,396 at 21 measured; the rest of the curve made up around them)
+GRIND = [65744, 41000, 30000, 24000, 19500, 16000, 14000, 12500, 11200, 10300, 9800, 9385, 8100, 7000, 6100,
+         5400, 4900, 4457, 4700, 5100, 5396, 5200, 4900, 4800, 4600]
+
+
+def feed_one_by_one(watch, counts, seconds_each):
+    """Feed the log as it grows, one iteration every seconds_each; the first stall or None."""
+    for n in range(1, len(counts) + 1):
+        stall = watch.feed(log_of(counts[:n]), now=n * seconds_each)
+        if stall is not None:
+            return stall
+    return None
+
+
+def test_a_grind_without_a_new_fewest_is_a_stall():
+    stall = feed_one_by_one(RouterWatch(), GRIND, 360.0)
+    # fewest 4,457 seen at 18 x 360 s; 30 minutes later (23 x 360 s) iteration 23 is the latest
+    assert STALL_MINUTES == 30.0
+    assert stall == {"iteration": 23, "overused": 4900, "fewest": 4457, "fewest_at": 18, "minutes": 30.0}
+    assert stall_text(stall) == "4,900 overused wires at iteration 23, fewest 4,457 at 18, none fewer for 30 min"
+
+
+def test_one_iteration_longer_than_the_limit_is_a_grind_too():
+    watch = RouterWatch()
+    assert watch.feed(log_of(GRIND[:18]), now=0.0) is None
+    assert watch.feed(log_of(GRIND[:18]), now=60 * STALL_MINUTES - 1) is None      # no new line yet
+    assert watch.feed(log_of(GRIND[:18]), now=60 * STALL_MINUTES)["fewest_at"] == 18
+
+
+def test_a_routed_run_at_its_measured_pace_is_not_a_grind():
+    # routed runs of the square took 20 to 30 s an iteration (55b4a19: 61 iterations, nextpnr 1,588 s)
+    assert feed_one_by_one(RouterWatch(), ROUTED, 30.0) is None
 
 
 FAKE = r'''
