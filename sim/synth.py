@@ -461,10 +461,12 @@ def check_block_rams(block_rams: int | None, device: str) -> None:
 
 
 def read_placed(directory) -> tuple[dict, dict]:
-    """`rheo synth`'s output directory as a measured place and route: its (synth.json, manifest.json).
-    A directory that is not one, or holds no Fmax (a `--no-pnr` run, a route that failed), is refused
-    naming what is missing. The caller proves the Verilog is its own core's (`same_verilog`)."""
+    """`rheo synth`'s output directory (or its synth.json) as a measured place and route: its (synth.json,
+    manifest.json). A directory that is not one, or holds no Fmax (a `--no-pnr` run, a route that failed),
+    is refused naming what is missing. The caller proves the core is its own (`same_verilog`)."""
     d = Path(directory)
+    if d.name == "synth.json" and d.is_file():
+        d = d.parent
     try:
         result = json.loads((d / "synth.json").read_text())
         manifest = json.loads((d / "manifest.json").read_text())

@@ -279,6 +279,8 @@ def test_an_output_directory_is_whole_or_untouched_and_keeps_the_users_files(tmp
     (["bench", "--backend", "fpga", "--synth", "{dir}"], ["--synth", "not an output directory of `rheo synth`"]),
     (["bench", "--backend", "fpga", "--synth", "{existing_dir}", "--fmax-mhz", "50"], ["--synth", "not with --fmax-mhz"]),
     (["bench", "--backend", "cpu", "--synth", "{existing_dir}"], ["--synth", "belong to --backend fpga"]),
+    (["report", "creep-1d", "--synth", "{existing_dir}", "--out", "{dir}"], ["--synth", "not an output directory of `rheo synth`"]),
+    (["report", "creep-1d", "--synth", "{existing_dir}", "--clock-mhz", "60", "--out", "{dir}"], ["--synth", "not with --clock-mhz"]),
     (["verilog", "creep-1d", "--lanes", "10000", "--out", "{dir}"], ["--lanes", "1..64"]),
     (["simulate", "creep-1d", "--out", "{existing_dir}.npz"], ["is an existing directory"]),
     (["simulate", "creep-1d", "--out", "{existing_file}/r.npz"], ["is not a directory"]),
@@ -301,6 +303,33 @@ def test_arguments_are_checked_before_any_work_and_nothing_is_left_behind(tmp_pa
     assert r.stdout == "" and time.perf_counter() - t0 < 30      # refused up front: no stage has begun
     assert _tree(tmp_path) == before and not (tmp_path / "new").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["existing_dir.npz", "existing_file", "run.npz"]
+
+
+def _placed(d: Path, scene="creep-1d", P=1, Q=1, preset="medium") -> Path:
+    """A stand-in for `rheo synth`'s output directory: what `rheo report --synth` reads of it."""
+    d.mkdir()
+    (d / "rheo_core.v").write_text("module rheo_core; endmodule\n")
+    (d / "synth.json").write_text(json.dumps({"place_and_route": True, "fmax_mhz": 70.0}))
+    (d / "manifest.json").write_text(json.dumps({
+        "verilog": "rheo_core.v", "scene": scene, "preset": preset, "cycles_per_step": {"value": 100},
+        "lanes": {"element_lanes_P": P, "pair_lanes": 0, "collision_lanes": 0, "node_lanes_Q": Q}}))
+    return d
+
+
+@pytest.mark.parametrize("placed, given, words", [
+    (dict(scene="pull-chain"), "dir", ["placed another core", "scene pull-chain", "creep-1d"]),
+    (dict(P=6, Q=2), "synth.json", ["placed another core", "P = 6, Q = 2", "one lane of each kind"]),
+    (dict(preset="wide"), "dir", ["preset wide, not among --presets narrow medium"]),
+])
+def test_report_takes_the_measured_fmax_of_its_own_core_only(tmp_path, placed, given, words):
+    """rheo report --synth DIR (or DIR/synth.json): a place and route of another scene, lane count or preset
+    is refused before any run (its Fmax would have been put on the report's core)."""
+    d = _placed(tmp_path / "placed", **placed)
+    r = rheo("report", "creep-1d", "--presets", "narrow", "medium", "--synth", d if given == "dir" else d / "synth.json",
+             "--out", tmp_path / "rep", timeout=120)
+    assert r.returncode == 2 and "Traceback" not in r.stderr and r.stdout == "", r.stderr
+    assert all(w in r.stderr for w in words), r.stderr
+    assert not (tmp_path / "rep").exists()
 
 
 def test_a_missing_simulator_is_refused_before_running(tmp_path):

@@ -22,8 +22,14 @@ def test_report_orders_presets_and_time_steps(tmp_path):
     p = tmp_path / "short.toml"
     p.write_text(scene)
     out = tmp_path / "rep"
-    r = subprocess.run([sys.executable, "-m", "sim.cli", "report", str(p), "--out", str(out)], cwd=ROOT,
-                       env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True, timeout=900)
+    # a place and route of the medium core, as `rheo synth` leaves it: the core `rheo verilog` emits, an Fmax
+    placed = tmp_path / "placed"
+    r = subprocess.run([sys.executable, "-m", "sim.cli", "verilog", str(p), "--preset", "medium", "--out", str(placed)],
+                       cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    (placed / "synth.json").write_text(json.dumps({"place_and_route": True, "fmax_mhz": 75.0}))
+    r = subprocess.run([sys.executable, "-m", "sim.cli", "report", str(p), "--out", str(out), "--synth", str(placed)],
+                       cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr
     for name in ("error.csv", "summary.json", "error_vs_time.png", "cost_vs_accuracy.png"):
         assert (out / name).stat().st_size > 0
@@ -52,6 +58,12 @@ def test_report_orders_presets_and_time_steps(tmp_path):
     assert len(rows) == s["frames"]
     assert float(rows[0]["t"]) == 0.0 and float(rows[-1]["t"]) > 0.29
     assert abs(max(float(row["quant_max_rel_wide"]) for row in rows) - q["wide"]) <= 1e-8 * q["wide"]  # CSV: 9 digits
+    # --synth: the medium point at its measured clock, the others at the default, each saying so
+    placed_cycles = json.loads((placed / "manifest.json").read_text())["cycles_per_step"]["value"]
+    assert s["fpga"]["cycles_per_step"]["medium"] == placed_cycles
+    assert s["fpga"]["clock_mhz_by_preset"] == {"narrow": 50.0, "medium": 75.0, "wide": 50.0}
+    assert s["fpga"]["clock_source_by_preset"]["medium"] == f"measured Fmax ({placed})"
+    assert abs(rt["fpga-medium"] - placed_cycles / (75e6 * s["dt"])) <= 1e-12 * rt["fpga-medium"]
     # a measured Fmax (rheo run --pnr) moves that preset's FPGA point only, and the plot is redrawn
     from sim.report import measured_clock
     png = (out / "cost_vs_accuracy.png").read_bytes()
@@ -61,6 +73,6 @@ def test_report_orders_presets_and_time_steps(tmp_path):
     cyc_m = s["fpga"]["cycles_per_step"]["medium"]
     assert abs(rt2["fpga-medium"] - cyc_m / (87.5e6 * s["dt"])) <= 1e-12 * rt2["fpga-medium"]
     assert rt2["fpga-wide"] == rt["fpga-wide"] and rt2["fpga-narrow"] == rt["fpga-narrow"]
-    assert s2["fpga"]["clock_source_by_preset"] == {"narrow": "assumed (--clock-mhz)", "medium": "measured Fmax (test)",
-                                                    "wide": "assumed (--clock-mhz)"}
+    assert s2["fpga"]["clock_source_by_preset"] == {"narrow": "assumed (default)", "medium": "measured Fmax (test)",
+                                                    "wide": "assumed (default)"}
     assert (out / "cost_vs_accuracy.png").read_bytes() != png
