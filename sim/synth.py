@@ -197,21 +197,26 @@ STALL_MINUTES = 30.0     # or this long without a new fewest count, whatever the
 STALL_RETRIES = 2        # seeds tried after the first stalls (seed + 1, seed + 2)
 WATCH_POLL_S = 5.0       # how often the log of a running nextpnr is read
 _ROUTER2_ITER = re.compile(r"^Info:\s+iter=(\d+) wires=\d+ overused=(\d+) ", re.M)
+_PLACED_FMAX = re.compile(r"^Info: Max frequency for clock '[^']*': ([\d.]+) MHz", re.M)   # first: after placement
 
 
 class RouterWatch:
     """router2's progress from its log lines (`iter=N wires=W overused=O ...`): `feed(text, now)` takes the
     log so far and the time in seconds (time.monotonic() unless given) and returns a stall (a dict:
     iteration, overused, fewest, fewest_at, and "minutes" since the fewest when it is a grind) or None;
-    `last` is the latest (iteration, overused). An iteration's time is that of the feed that first saw it."""
+    `last` is the latest (iteration, overused); `placed_mhz` nextpnr's Fmax estimate of the placement (before
+    routing), once logged. An iteration's time is that of the feed that first saw it."""
 
     def __init__(self, iterations: int = STALL_ITERATIONS, ratio: float = STALL_RATIO,
                  minutes: float = STALL_MINUTES):
         self.iterations, self.ratio, self.minutes = iterations, ratio, minutes
         self.fewest, self.fewest_at, self.fewest_time, self.last = None, None, None, None
+        self.placed_mhz = None
 
     def feed(self, log_text: str, now: float | None = None) -> dict | None:
         now = time.monotonic() if now is None else now
+        if self.placed_mhz is None and (m := _PLACED_FMAX.search(log_text)):
+            self.placed_mhz = float(m.group(1))
         for m in _ROUTER2_ITER.finditer(log_text):
             it, over = int(m.group(1)), int(m.group(2))
             if self.last is not None and it <= self.last[0]:
@@ -240,8 +245,8 @@ def stall_text(st: dict) -> str:
 def _run_watched(step: str, argv: list[str], log: Path, cwd: Path, timeout_s: float, watch: RouterWatch,
                  say=lambda msg: None, poll_s: float = WATCH_POLL_S) -> dict | None:
     """Run nextpnr as `_run` does, reading its log every poll_s seconds: a stall (`watch`) stops it and is
-    returned; None when it ran to its end. Progress (router2's iteration and overused wires) at most a
-    minute apart through `say`."""
+    returned; None when it ran to its end. Progress through `say`: the placement's Fmax estimate once, then
+    router2's iteration and overused wires at most a minute apart."""
     out, err = cwd / f".{step}.stdout", cwd / f".{step}.stderr"
     try:
         with open(out, "w") as fo, open(err, "w") as fe:
@@ -249,7 +254,7 @@ def _run_watched(step: str, argv: list[str], log: Path, cwd: Path, timeout_s: fl
                 proc = subprocess.Popen(argv, cwd=cwd, stdin=subprocess.DEVNULL, stdout=fo, stderr=fe)
             except OSError as e:
                 raise SynthesisError(f"{step} could not be started ({argv[0]}): {e}") from None
-            t0, said = time.monotonic(), time.monotonic()
+            t0, said, placed_said = time.monotonic(), time.monotonic(), False
             try:
                 while True:
                     try:
@@ -260,6 +265,10 @@ def _run_watched(step: str, argv: list[str], log: Path, cwd: Path, timeout_s: fl
                     stall = watch.feed(_read(log))
                     if stall is not None:
                         return stall
+                    if watch.placed_mhz is not None and not placed_said:
+                        say(f"nextpnr: placed ({time.monotonic() - t0:.0f} s), Fmax estimate {watch.placed_mhz:g} MHz "
+                            f"before routing; routing")
+                        placed_said = True
                     if time.monotonic() - t0 > timeout_s:
                         raise SynthesisError(f"{step} timed out after {timeout_s:.0f} s (killed); log {log}:\n"
                                              f"{_tail(_read(log))}")

@@ -85,6 +85,7 @@ args = sys.argv[1:]
 seed, log = int(args[args.index("--seed") + 1]), args[args.index("--log") + 1]
 counts = {stalled}.get(seed, {routed})
 with open(log, "w") as f:
+    f.write("Info: Max frequency for clock '$glbnet$clk': 62.53 MHz (FAIL at 100.00 MHz)\n")
     f.write("Info: Running router2...\n")
     for k, c in enumerate(counts):
         f.write(f"Info:     iter={{k + 1}} wires={{1000000 + k}} overused={{c}} overuse={{c}} archfail=NA\n")
@@ -113,6 +114,10 @@ def test_a_stalled_seed_is_stopped_and_the_next_one_routes(tmp_path):
     assert (tmp_path / "nextpnr-seed3-stalled.log").is_file()
     assert "overused=0" in (tmp_path / "nextpnr.log").read_text()     # the log is the routed seed's
     assert any("stalled with seed 3" in s and "trying seed 4" in s for s in said), said
+    # the placement's estimate, said once a seed before its routing (the stalled seed's for certain: it runs on)
+    placed = [k for k, s in enumerate(said) if "placed" in s and "Fmax estimate 62.53 MHz before routing" in s]
+    stalled = next(k for k, s in enumerate(said) if "stalled with seed 3" in s)
+    assert 1 <= len(placed) <= 2 and placed[0] < stalled, said
 
 
 def test_every_seed_stalled_is_an_error_naming_them(tmp_path):
