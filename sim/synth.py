@@ -47,8 +47,8 @@ tmp_path, for one) would not reach the host, while relative ones (through its ".
    routed runs take under a minute an iteration). The log is watched while nextpnr runs
    (`RouterWatch`): STALL_ITERATIONS iterations without a new fewest count and a count at least
    STALL_RATIO times the fewest, or STALL_MINUTES of routing without a new fewest, stop it, and place
-   and route starts again with the next seed, at most STALL_RETRIES times. synth.json's "seed" is the seed that
-   routed, "stalled_seeds" the ones given up (with the counts that gave them up).
+   and route starts again with the next seed, at most STALL_RETRIES times. synth.json's "seed" is the
+   seed that routed, "stalled_seeds" the ones given up (with the counts that gave them up).
 
    No bitstream/textual config is written (it is not needed for resources or timing).
    `--timing-allow-fail` makes a missed constraint a result (`timing_met: false`), not an error.
