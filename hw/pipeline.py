@@ -36,7 +36,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from amaranth.hdl import Const, Module, Mux, Signal, Value, unsigned
+from amaranth.hdl import Cat, Const, Elaboratable, Module, Mux, Signal, Value, unsigned
 from amaranth.lib.memory import Memory
 
 from .arith import Arith, Gate
@@ -127,6 +127,34 @@ class SatSource:
     gate: PBool | None
 
 
+class PackedLines(Elaboratable):
+    """The delay lines of one group and span side by side in one 16-word LUT RAM: a value of w bits in a
+    line of its own takes ceil(w / 4) TRELLIS_DPR16X4, so flags and narrow values wasted most of theirs
+    (an element lane of press-2d-rheological, medium: 315 DPR16X4 alone, 257 packed). Built when the
+    design is elaborated, after the kernel and its users (scatter, state write) have asked for every line:
+    each line's value is written at `w_addr` every cycle, the word read at `r_addr` combinationally, and
+    its slice registered into the line's output (`add`'s `out`)."""
+
+    def __init__(self, w_addr: Signal, r_addr: Signal):
+        self.w_addr, self.r_addr = w_addr, r_addr
+        self.lines: list[tuple[Value, Signal]] = []
+
+    def add(self, value: Value, out: Signal):
+        self.lines.append((value, out))
+
+    def elaborate(self, platform):
+        m = Module()
+        word = Cat(*(value for value, _ in self.lines))
+        m.submodules.mem = mem = Memory(shape=unsigned(len(word)), depth=LINE_WORDS, init=[])
+        wr, rd = mem.write_port(), mem.read_port(domain="comb")
+        m.d.comb += [wr.addr.eq(self.w_addr), wr.data.eq(word), wr.en.eq(1), rd.addr.eq(self.r_addr)]
+        at = 0
+        for value, out in self.lines:
+            m.d.sync += out.eq(rd.data[at:at + len(value)])
+            at += len(value)
+        return m
+
+
 class PipeArith(Arith):
     """Builds one pipeline lane in module `m`.
 
@@ -151,6 +179,7 @@ class PipeArith(Arith):
         self.depth = 0
         self._lines = 0                        # delay lines made so far
         self._counters: dict = {}              # (line group, span; 0: write) -> its address counter
+        self._packs: dict = {}                 # (line group, span) -> its PackedLines
 
     def __enter__(self):
         _CURRENT.append(self)
@@ -213,26 +242,26 @@ class PipeArith(Arith):
     def _line(self, value: Value, span: int) -> Value:
         """`value` `span` cycles later (LINE_MIN <= span <= LINE_MAX) through a delay line: written every
         cycle at word t mod 16 (t: a free-running cycle count), read combinationally span - 1 words back, the word
-        registered. The addresses come from counters (`_line_address`) shared by LINE_GROUP lines made
-        one after another (near each other in the pipeline), each group's kept apart in synthesis."""
+        registered. Lines made one after another share address counters in groups of LINE_GROUP
+        (`_line_address`); the lines of one group and span also share their LUT RAM (`PackedLines`)."""
         assert LINE_MIN <= span <= LINE_MAX, span
-        width = value.shape().width
-        mem = Memory(shape=unsigned(width), depth=LINE_WORDS, init=[])
-        name = self._name("line")
-        self.m.submodules[name] = mem
-        w_addr, r_addr = self._line_address(0), self._line_address(span)
+        group = self._lines // LINE_GROUP
         self._lines += 1
-        wr, rd = mem.write_port(), mem.read_port(domain="comb")
-        self.m.d.comb += [wr.addr.eq(w_addr), wr.data.eq(value), wr.en.eq(1), rd.addr.eq(r_addr)]
-        return self._reg(rd.data, value.shape(), "line")
+        key = (group, span)
+        if key not in self._packs:
+            pack = PackedLines(self._line_address(group, 0), self._line_address(group, span))
+            self.m.submodules[f"{self.name}_lines{group}_s{span}"] = pack
+            self._packs[key] = pack
+        out = Signal(value.shape(), name=self._name("line"), reset_less=True)
+        self._packs[key].add(value, out)
+        return out
 
-    def _line_address(self, span: int) -> Signal:
-        """The current line group's counter of write addresses (span 0) or of read addresses for `span`:
+    def _line_address(self, group: int, span: int) -> Signal:
+        """Line group `group`'s counter of write addresses (span 0) or of read addresses for `span`:
         counting from -(span - 1) mod 16, one a cycle. One counter for all of a lane's lines was a
         route across the die (12.3 ns of routing on the 1e3 poke, 61 MHz); a counter a line cost the
         1e4 square 5,300 LUT4 and 6,200 flip-flops more, and its route stalled; so did groups of 8
         (1,000 LUT4 more than groups of 32, with which it routed: docs/streaming-core.md)."""
-        group = self._lines // LINE_GROUP
         key = (group, span)
         if key not in self._counters:
             what = "w" if span == 0 else f"r{span}"

@@ -451,3 +451,39 @@ def test_products_on_instantiated_multipliers_equal_the_logic_form_cycle_for_cyc
         bits = [int(lo) + (int(hi) << 48 if width > 48 else 0) for lo, hi in got[:, 2 * k:2 * k + 2]]
         # operands of cycle t reach the output after edge t + lat - 1 (row t + lat - 1)
         assert bits[lat - 1:] == want[:200 - lat + 1], f"product {k}: {sa} x {sb}"
+
+
+@pytest.mark.parametrize("delay", [3, 4, 10, 16, 17, 20, 35])
+def test_delay_lines_give_each_value_its_delay_later(delay):
+    """PipeArith.delay (hw/pipeline.py) by registers (under LINE_MIN stages) or by delay lines packed side
+    by side in one LUT RAM per group and span, chained past LINE_MAX: a flag, a signed 6-bit and an
+    unsigned 13-bit value, fed random items, each comes out `delay` cycles later, bit for bit, beside
+    delays of 5 stages made in between (another span in the same group)."""
+    from hw.pipeline import PipeArith
+    m = Module()
+    flag, small, wide = Signal(), Signal(signed(6)), Signal(13)
+    ar = PipeArith(m, {}, {}, Signal(), "lane")
+    outs, near = [], []
+    for v in (flag, small, wide):
+        outs.append(ar.delay(v, 0, delay))
+        near.append(ar.delay(v, 0, 5))
+    rng = np.random.default_rng(delay)
+    n = 80
+    items = [(int(rng.integers(0, 2)), int(rng.integers(-32, 32)), int(rng.integers(0, 1 << 13))) for _ in range(n)]
+    got, got_near = [], []
+
+    async def tb(ctx):
+        for c in range(n + max(delay, 5) + 1):
+            for sig, val in zip((flag, small, wide), items[c] if c < n else (0, 0, 0)):
+                ctx.set(sig, val)
+            if delay <= c < n + delay:
+                got.append(tuple(ctx.get(o) for o in outs))
+            if 5 <= c < n + 5:
+                got_near.append(tuple(ctx.get(o) for o in near))
+            await ctx.tick()
+    sim = Simulator(m)
+    sim.add_clock(1e-8)
+    sim.add_testbench(tb)
+    sim.run()
+    assert got == items
+    assert got_near == items

@@ -308,6 +308,32 @@ def test_delay_line_groups_keep_their_own_addresses(tmp_path):
     assert r["flip_flops"] == 2 * (4 + 4) + dut.n * 8, r["flip_flops"]
 
 
+class NarrowDelays(wiring.Component):
+    """Six flags and two 6-bit values, each delayed 10 stages by a pipeline: the scatter's slots and flags."""
+
+    def __init__(self):
+        super().__init__({"a": In(18), "o": Out(18)})
+
+    def elaborate(self, platform):
+        from hw.pipeline import PipeArith
+        m = Module()
+        ar = PipeArith(m, {}, {}, Const(1, 1), "lane")
+        parts = [self.a[k:k + 1] for k in range(6)] + [self.a[6:12].as_signed(), self.a[12:18].as_signed()]
+        m.d.comb += self.o.eq(Cat(*(ar.delay(v, 0, 10) for v in parts)))
+        return m
+
+
+def test_narrow_delay_lines_share_one_lut_ram(tmp_path):
+    """Delay lines of one group and span are packed side by side (hw/pipeline.py PackedLines): the 18 bits
+    of six flags and two 6-bit values take 5 TRELLIS_DPR16X4, where a line each took 6 + 2 x 2 = 10; each
+    line keeps its output register (18 flip-flops) beside one write and one read counter (4 + 4)."""
+    src = tmp_path / "narrow.v"
+    src.write_text(verilog.convert(NarrowDelays(), name="narrow"))
+    r = synthesize(src, "narrow", tmp_path / "out", device="ecp5-85k", place_and_route=False)
+    assert r["distributed_rams"] == 5, r
+    assert r["flip_flops"] == 18 + 4 + 4, r["flip_flops"]
+
+
 def test_force_ring_registers_its_flags_per_dimension(tmp_path):
     """A force ring's forwarding flags (did the item 1, 2, 3 ahead write this word?) and its `first`
     flag are registered once per dimension, kept apart in Yosys: each drives one dimension's acc_bits
