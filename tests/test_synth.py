@@ -369,8 +369,9 @@ def test_each_lane_registers_its_own_issue(stream_netlist):
     ISSUE_FANOUT), each copy kept apart: after Yosys the two element lanes' slot registers are two sets of
     flip-flops, not one set feeding both lanes across the die. Amaranth names each register after the
     lane port it drives, the tagged name an alias: the script's `%a` (sim/synth.py) follows it. Each
-    force ring registers the retirement's slot for its node copy the same way (RETIRE_FANOUT), and each
-    element lane the host's access to its a memory (ELEM_FANOUT)."""
+    force ring registers the retirement's slot for its node copy the same way (RETIRE_FANOUT), each
+    element lane the host's access to its a memory (ELEM_FANOUT) and the node store its own (NODE_FANOUT:
+    Yosys once merged it with element lane 0's, which then lost its copy)."""
     nets, cells = stream_netlist
     drivers = {}                                      # flip-flop output bit -> the cell
     for c in cells.values():
@@ -380,8 +381,9 @@ def test_each_lane_registers_its_own_issue(stream_netlist):
     assert all(b in drivers for b in slot[0] + slot[1])
     assert not set(slot[0]) & set(slot[1])
     host = {lane: nets[f"el{lane}.host_wdata"]["bits"] + nets[f"el{lane}.host_pos"]["bits"] for lane in (0, 1)}
-    assert all(b in drivers for b in host[0] + host[1])
-    assert not set(host[0]) & set(host[1])
+    store = nets["store.h_addr"]["bits"]            # the store's copy of the same bus, registered apart too
+    assert all(b in drivers for b in host[0] + host[1] + store)
+    assert not set(host[0]) & set(host[1]) and not set(store) & (set(host[0]) | set(host[1]))
     # each force ring's node copy (DP16KD) reads at flip-flops of its own, none shared with another ring
     readers = {}                                      # flip-flop -> the rings whose node copy it addresses
     for name, c in cells.items():

@@ -204,9 +204,11 @@ class StreamCore(wiring.Component):
                      sat.clear.eq(hp.sat_clear)]
 
         # node store: the fill reads, the node lanes write, the host while idle (its access registered in
-        # front of the store, NODE_FANOUT; the host port expects the store's word that much later)
+        # front of the store, NODE_FANOUT, kept apart: Yosys merged it with an element lane's copy of the
+        # same bus; the host port expects the store's word that much later)
         def node_host(what, data=True):
-            return delay(m, getattr(hp, f"node_{what}"), NODE_FANOUT, f"store_host_{what}", data=data)
+            return delay(m, getattr(hp, f"node_{what}"), NODE_FANOUT, f"store_host_{what}{KEEP_APART_TAG}",
+                         data=data)
         m.d.comb += [store.busy.eq(busy_at("store")), store.rd_addr.eq(ctl.fill.group),
                      store.h_addr.eq(node_host("addr")), store.h_bank.eq(node_host("bank")),
                      store.h_field.eq(node_host("field")), store.h_wdata.eq(node_host("wdata")),
