@@ -46,8 +46,10 @@ tmp_path, for one) would not reach the host, while relative ones (through its ".
    square, seed 6 of the next netlist: fewest 4,457 at iteration 18, 5,396 at 21 after 2 h 14 min;
    routed runs take under a minute an iteration). The log is watched while nextpnr runs
    (`RouterWatch`): STALL_ITERATIONS iterations without a new fewest count and a count at least
-   STALL_RATIO times the fewest, or STALL_MINUTES of routing without a new fewest, stop it, and place
-   and route starts again with the next seed, at most STALL_RETRIES times. synth.json's "seed" is the
+   STALL_RATIO times the fewest and STALL_EXCESS wires above it (session 17's square, seed 2, hovered at
+   1 and 2 overused wires from iteration 46 to 66: the ratio alone called that a stall), or STALL_MINUTES
+   of routing without a new fewest, stop it, and place and route starts again with the next seed, at most
+   STALL_RETRIES times. synth.json's "seed" is the
    seed that routed, "stalled_seeds" the ones given up (with the counts that gave them up).
 
    No bitstream/textual config is written (it is not needed for resources or timing).
@@ -192,7 +194,8 @@ def _run(step: str, argv: list[str], log: Path, cwd: Path, timeout_s: float) -> 
 
 
 STALL_ITERATIONS = 15    # router2 iterations without a new fewest overused-wire count ...
-STALL_RATIO = 2.0        # ... and a count at least this many times the fewest: a stall
+STALL_RATIO = 2.0        # ... and a count at least this many times the fewest ...
+STALL_EXCESS = 100       # ... and this many wires above it: a stall (1 -> 2 is a router finishing, not stalling)
 STALL_MINUTES = 30.0     # or this long without a new fewest count, whatever the count: a grind
 STALL_RETRIES = 2        # seeds tried after the first stalls (seed + 1, seed + 2)
 WATCH_POLL_S = 5.0       # how often the log of a running nextpnr is read
@@ -208,8 +211,8 @@ class RouterWatch:
     routing), once logged. An iteration's time is that of the feed that first saw it."""
 
     def __init__(self, iterations: int = STALL_ITERATIONS, ratio: float = STALL_RATIO,
-                 minutes: float = STALL_MINUTES):
-        self.iterations, self.ratio, self.minutes = iterations, ratio, minutes
+                 minutes: float = STALL_MINUTES, excess: int = STALL_EXCESS):
+        self.iterations, self.ratio, self.minutes, self.excess = iterations, ratio, minutes, excess
         self.fewest, self.fewest_at, self.fewest_time, self.last = None, None, None, None
         self.placed_mhz = None
 
@@ -224,7 +227,8 @@ class RouterWatch:
             self.last = (it, over)
             if self.fewest is None or over < self.fewest:
                 self.fewest, self.fewest_at, self.fewest_time = over, it, now
-            elif it - self.fewest_at >= self.iterations and over >= self.ratio * max(self.fewest, 1):
+            elif (it - self.fewest_at >= self.iterations and over >= self.ratio * self.fewest
+                  and over - self.fewest >= self.excess):
                 return self._stall()
         if self.fewest_time is not None and now - self.fewest_time >= 60 * self.minutes:
             return {**self._stall(), "minutes": round((now - self.fewest_time) / 60, 1)}

@@ -74,6 +74,19 @@ def test_one_iteration_longer_than_the_limit_is_a_grind_too():
     assert watch.feed(log_of(GRIND[:18]), now=60 * STALL_MINUTES)["fewest_at"] == 18
 
 
+# router2 near its end on the 1e4 square at P = 6 (session 17's netlist, seed 2), iterations 40 to 66: measured
+FINISHING = [3, 6, 5, 2, 5, 4, 1, 1, 1, 1, 1, 2, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 2, 1]
+
+
+def test_a_count_of_one_or_two_is_not_a_stall():
+    """The ratio alone (2 >= 2 x 1, 19 iterations after the fewest) stopped this run; it is 1 wire from
+    routed, so it goes on (the grind rule, STALL_MINUTES without a new fewest, still bounds it)."""
+    watch = RouterWatch()
+    assert watch.feed(log_of(STALLED[:39] + FINISHING)) is None
+    assert watch.last == (39 + len(FINISHING), 1) and watch.fewest == 1
+    assert RouterWatch(excess=1).feed(log_of(STALLED[:39] + FINISHING))["overused"] == 2   # what it was
+
+
 def test_a_routed_run_at_its_measured_pace_is_not_a_grind():
     # routed runs of the square took 20 to 30 s an iteration (55b4a19: 61 iterations, nextpnr 1,588 s)
     assert feed_one_by_one(RouterWatch(), ROUTED, 30.0) is None
