@@ -381,7 +381,7 @@ def test_each_lane_registers_its_own_issue(stream_netlist):
     assert all(b in drivers for b in slot[0] + slot[1])
     assert not set(slot[0]) & set(slot[1])
     host = {lane: nets[f"el{lane}.host_wdata"]["bits"] + nets[f"el{lane}.host_pos"]["bits"] for lane in (0, 1)}
-    store = nets["store.h_addr"]["bits"]            # the store's copy of the same bus, registered apart too
+    store = nets["store.h_wdata"]["bits"] + nets["store.h_addr"]["bits"]   # the store's copy, apart too
     assert all(b in drivers for b in host[0] + host[1] + store)
     assert not set(host[0]) & set(host[1]) and not set(store) & (set(host[0]) | set(host[1]))
     # each force ring's node copy (DP16KD) reads at flip-flops of its own, none shared with another ring
