@@ -260,21 +260,21 @@ def test_saturation_counter_counts_and_flags():
         log.append((get(dut.count), get(dut.flags)))
 
     simulate(dut, len(plan) + 5, drive, sample)
-    # reference: an event of cycle s is in `count` from cycle s + 3, in `flags` from s + 1; a clear in
-    # cycle c zeroes both from c + 1 on, and then only events from cycle c - 1 on (count: the ones not
-    # yet summed) or c + 1 on (flags) are in them
+    # reference: an event of cycle s is in `count` from cycle s + 4, in `flags` from s + 2 (registered on
+    # entry); a clear in cycle c zeroes both from c + 1 on, and then only events from cycle c - 2 on (count:
+    # the ones not yet summed) or c on (flags) are in them
     ev = lambda s_: plan[s_] if 0 <= s_ < len(plan) else [0] * 12
     qs = sorted(set(events))
     for t in range(len(plan) + 4):
-        lo_c, lo_f = (clear_at - 1, clear_at + 1) if t >= clear_at + 1 else (0, 0)
-        count = sum(sum(ev(s_)) for s_ in range(lo_c, t - 2))
+        lo_c, lo_f = (clear_at - 2, clear_at) if t >= clear_at + 1 else (0, 0)
+        count = sum(sum(ev(s_)) for s_ in range(lo_c, t - 3))
         flags = 0
-        for s_ in range(lo_f, t):
+        for s_ in range(lo_f, t - 1):
             for k, q in enumerate(events):
                 if ev(s_)[k]:
                     flags |= 1 << qs.index(q)
         expect[t] = (count, flags)
-    for t in range(3, len(plan) + 4):
+    for t in range(4, len(plan) + 4):
         assert log[t][0] == expect[t][0], (t, log[t], expect[t])
         assert log[t][1] == expect[t][1], (t, log[t], expect[t])
 
@@ -295,7 +295,8 @@ def test_host_port_decodes_registers_and_memories(elem_fanout, node_fanout):
     a_word = 0x3FFFE
     reads = [Reg.ID, Reg.RUN, Reg.STATUS, Reg.STEP, Reg.SATURATIONS, Reg.SATURATION_FLAGS, Reg.CYCLES,
              int(hm.node_addr(3, 2)), int(hm.elem_addr(0, 1))]
-    writes = [(Reg.RUN, 7), (Reg.STEP, 11), (Reg.SATURATIONS, 0), (int(hm.node_addr(1, 3)), 5), (int(hm.elem_addr(0, 2)), 9)]
+    writes = [(Reg.STEP, 11), (Reg.RUN, 7), (int(hm.node_addr(1, 3)), 5), (Reg.SATURATIONS, 0),
+              (int(hm.node_addr(1, 3)), 5), (int(hm.elem_addr(0, 2)), 9)]
     seq = [("w", a, d) for a, d in writes] + [("r", a, 0) for a in reads] + [("n", 0, 0)] * 6
     strobes, answers = [], []
 
@@ -318,12 +319,14 @@ def test_host_port_decodes_registers_and_memories(elem_fanout, node_fanout):
 
     valid_at = []
     simulate(dut, len(seq), drive, sample)
-    # the bus is registered on entry: a write's strobes a cycle after its request, answers 5 cycles after
-    assert strobes[1]["run_start"] == 1 and strobes[1]["run_steps"] == 7 and strobes[0]["run_start"] == 0
-    assert strobes[2]["step_we"] == 1 and strobes[2]["step_wdata"] == 11
-    assert strobes[3]["sat_clear"] == 1
-    assert (strobes[4]["node_we"], strobes[4]["node_field"], strobes[4]["node_bank"], strobes[4]["node_addr"]) == (1, 1, 1, 1)
-    assert (strobes[5]["elem_we"], strobes[5]["elem_pos"]) == (0b01, 1)
+    # the bus is registered on entry: a write's strobes a cycle after its request (the control's, RUN and
+    # STEP, two cycles after), answers 5 cycles after; a write while a start is on its way is ignored
+    assert strobes[2]["step_we"] == 1 and strobes[2]["step_wdata"] == 11 and strobes[1]["step_we"] == 0
+    assert strobes[3]["run_start"] == 1 and strobes[3]["run_steps"] == 7 and strobes[2]["run_start"] == 0
+    assert strobes[3]["node_we"] == 0 and strobes[4]["run_start"] == 0
+    assert strobes[4]["sat_clear"] == 1
+    assert (strobes[5]["node_we"], strobes[5]["node_field"], strobes[5]["node_bank"], strobes[5]["node_addr"]) == (1, 1, 1, 1)
+    assert (strobes[6]["elem_we"], strobes[6]["elem_pos"]) == (0b01, 1)
     m32 = 0xFFFFFFFF
     assert answers == [ID_WORD, 3, 2, 12, 13, 5, 99, (-1) & m32, (-2) & m32]
     assert dut.read_latency == 5 + lag

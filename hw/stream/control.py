@@ -24,6 +24,7 @@ from amaranth.hdl import Module, Signal
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
+from ..rtl_fixed import KEEP_APART_TAG
 from .bram import LATENCY, BlockRam
 from .element import IssueSignature
 from .node import RetireSignature
@@ -91,24 +92,28 @@ class Control(wiring.Component):
             act = delay(m, act_rom, LOOKAHEAD - LATENCY, f"{name}_act_ev")
             ph = delay(m, ph_e, LOOKAHEAD, f"{name}_ph")
             if rom_bits is None:
-                en = act
+                en = own = act
             else:
                 rom = BlockRam(1, T, init=[int(b) for b in rom_bits], writable=False, ram=self.ram)
                 m.submodules[f"{name}_phases"] = rom
                 m.d.comb += rom.r_addr.eq(ph_e)
                 # the event bit registered beside its consumers (nextpnr had the ROM, the last-group test and
-                # the host port's step counters in one cycle across the chip: 11.9 ns)
-                en = delay(m, act_rom & rom.r_data[0], LOOKAHEAD - LATENCY, f"{name}_en")
+                # the host port's step counters in one cycle across the chip: 11.9 ns), in two copies kept
+                # apart: the output's, which goes to every lane, and the control's own (one register for
+                # both sat between them: 4.5 + 6.5 ns of routing into the run's end on the 1e4 square)
+                hit = act_rom & rom.r_data[0]
+                en = delay(m, hit, LOOKAHEAD - LATENCY, f"{name}_en")
+                own = delay(m, hit, LOOKAHEAD - LATENCY, f"{name}_en_own{KEEP_APART_TAG}")
             # the step's window base: k Gs mod Wg
             base = Signal(self.wbits, name=f"{name}_base")
             with m.If(~act):
                 m.d.sync += base.eq(0)
             with m.Elif(ph == T - 1):
                 m.d.sync += base.eq(base + sch.base_step)
-            return en, ph, base
+            return en, own, ph, base
 
         # fill
-        f_en, f_ph, f_base = process("fill", sch.fill_start, sch.fill_phases())
+        f_en, _, f_ph, f_base = process("fill", sch.fill_start, sch.fill_phases())
         f_g = Signal(self.gbits, name="fill_group")
         with m.If(f_en):
             m.d.sync += f_g.eq(f_g + 1)
@@ -116,28 +121,34 @@ class Control(wiring.Component):
             m.d.sync += f_g.eq(0)
         m.d.comb += [self.fill.valid.eq(f_en), self.fill.group.eq(f_g), self.fill.slot.eq(f_base + f_g)]
         # issue
-        i_act, i_ph, i_base = process("issue", sch.issue_start - ISSUE_FANOUT, None)
+        i_act, _, i_ph, i_base = process("issue", sch.issue_start - ISSUE_FANOUT, None)
         m.d.comb += [self.issue.valid.eq(i_act & (i_ph < sch.slots)), self.issue.slot.eq(i_ph),
                      self.issue.base.eq(i_base)]
         # retire
-        r_en, r_ph, r_base = process("retire", sch.retire_start - RETIRE_FANOUT, sch.retire_phases())
+        r_en, r_own, r_ph, r_base = process("retire", sch.retire_start - RETIRE_FANOUT, sch.retire_phases())
         r_g = Signal(self.gbits, name="retire_group")
+        # r_g == Gs - 1, kept in a register beside r_g (the compare and the step counters' enables were
+        # one cycle)
+        at_last = Signal(name="retire_at_last", init=int(sch.groups == 1))
         with m.If(r_en):
-            m.d.sync += r_g.eq(r_g + 1)
+            m.d.sync += [r_g.eq(r_g + 1), at_last.eq((r_g == sch.groups - 2) if sch.groups > 1 else 0)]
         with m.If((r_ph == T - 1) | ~busy):
-            m.d.sync += r_g.eq(0)
-        last = Signal()
-        m.d.comb += [last.eq(r_en & (r_g == sch.groups - 1)),
+            m.d.sync += [r_g.eq(0), at_last.eq(int(sch.groups == 1))]
+        last, last_own = Signal(), Signal()
+        m.d.comb += [last.eq(r_en & at_last), last_own.eq(r_own & at_last),
                      self.retire.valid.eq(r_en), self.retire.group.eq(r_g), self.retire.slot.eq(r_base + r_g),
                      self.retire.step.eq(self.step), self.retire.last.eq(last)]
 
         # steps, the end of the run
         drain = RETIRE_FANOUT + sch.latencies.node + SAT_TAIL
         draining = Signal(range(drain + 2))
+        # steps_left == 1, registered (steps_left changes once a period at most: valid by the next `last`)
+        one_left = Signal(name="one_left")
+        m.d.sync += one_left.eq(self.steps_left == 1)
         with m.If(busy):
-            with m.If(last):
+            with m.If(last_own):
                 m.d.sync += [self.step.eq(self.step + 1), self.steps_left.eq(self.steps_left - 1)]
-                with m.If(self.steps_left == 1):
+                with m.If(one_left):
                     m.d.sync += draining.eq(drain)
             with m.Elif(draining == 1):
                 m.d.sync += [busy.eq(0), draining.eq(0)]
