@@ -48,11 +48,15 @@ from .node import NodeLane
 from .nodeword import delay, segment
 from .pair import PairLane
 from .probeport import ProbePort
+from .saturation import LATENCY as SAT_LATENCY
 from .saturation import SaturationCounter
-from .schedule import BUSY_FANOUT, ELEM_FANOUT, ISSUE_FANOUT, NODE_FANOUT, RETIRE_FANOUT
+from .schedule import BUSY_FANOUT, ELEM_FANOUT, ISSUE_FANOUT, NODE_FANOUT, RETIRE_FANOUT, SAT_TAIL
 from .store import NodeStore
 from .tables import share as share_tables
 from .window import NodeWindow
+
+# a run's drain waits for a node's last saturation report: the node lane's 2 registers, then the counter's
+assert SAT_TAIL == 2 + SAT_LATENCY, (SAT_TAIL, SAT_LATENCY)
 
 
 class StreamCore(wiring.Component):

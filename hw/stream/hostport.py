@@ -4,9 +4,10 @@ Word addresses, 32-bit data. The bus is registered on entry (address, data, stro
 and its fan-out to the control's counters and every lane's memory then start at flip-flops, not at the
 host's logic); a write acts a cycle after its request (an element write `elem_fanout` cycles later, a node
 write `node_fanout` cycles later: each element lane and the node store register the host's access,
-hw/stream/core.py; a RUN or STEP write a cycle later: `run_*` and `step_*` are registered once more, beside
-the control's counters, and the port stays busy while a start is in that register), a read answers `read_latency` = READ_LATENCY + 2 + max(elem_fanout, node_fanout) cycles
-after it, `r_valid` marking the answer: the registered request presents the decoded address to the memories
+hw/stream/core.py; a RUN or STEP write a cycle later: `run_*` and `step_*` are registered once more,
+beside the control's counters, and the port stays busy while a start is in that register), a read answers
+`read_latency` = READ_LATENCY + 2 + max(elem_fanout, node_fanout) cycles after it, `r_valid` marking the
+answer: the registered request presents the decoded address to the memories
 (block RAMs, data two cycles later; a cycle later per register in front of them) while the address is
 registered, decoded into one select per answer and the selects registered; the memories' words and the
 registers' values are registered on entry (the selects with them, each answer held until the latest
@@ -92,7 +93,8 @@ class HostPort(wiring.Component):
         r_en1, r_en2, r_en3 = Signal(), Signal(), Signal()
         a1 = Signal(ADDR_BITS)
         m.d.sync += [r_en1.eq(r_en), a1.eq(addr), r_en2.eq(r_en1), r_en3.eq(r_en2)]
-        regs = {Reg.ID: ID_WORD, Reg.RUN: self.steps_left, Reg.STATUS: Cat(self.busy | self.run_start, self.sat_flags.any()),
+        regs = {Reg.ID: ID_WORD, Reg.RUN: self.steps_left,
+                Reg.STATUS: Cat(self.busy | self.run_start, self.sat_flags.any()),
                 Reg.STEP: self.step, Reg.SATURATIONS: self.sat_count, Reg.SATURATION_FLAGS: self.sat_flags,
                 Reg.CYCLES: self.cycles}
         n1, e1 = a1 - NODE_BASE, a1 - ELEM_BASE

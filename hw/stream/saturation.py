@@ -5,9 +5,9 @@ Every lane reports, per saturating quantity, how many of its items saturated tha
 from lanes all over the die: the route and a chunk's adders in one cycle took 12.7 ns on the 1e4 square),
 summed in two registered levels (sums of up to CHUNK reports, then their sum: no long adder tree in one
 cycle, as there are about 15 reports per lane), then added into `count` (saturating at 2^32 - 1): an
-event is in `count` LATENCY = 4 cycles after its lane register. `flags` bit k (quantity `quantities[k]`, sorted by name as
-the manifest lists them) is set when any lane reports that quantity, and stays set. `clear` zeroes both
-(events already summed but not yet in `count` are lost with it).
+event is in `count` LATENCY = 4 cycles after its lane register. `flags` bit k (quantity `quantities[k]`,
+sorted by name as the manifest lists them) is set when any lane reports that quantity, and stays set.
+`clear` zeroes both (events already summed but not yet in `count` are lost with it).
 """
 from __future__ import annotations
 
