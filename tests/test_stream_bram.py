@@ -92,6 +92,28 @@ def test_distributed_ram_equals_reference(ram, width, depth, segments):
         assert got[t] == ref[t], f"{ram} {width}x{depth}: read after edge {t}: {got[t]:#x} != {ref[t]:#x}"
 
 
+@pytest.mark.parametrize("ram", ["sim", "ecp5"])
+@pytest.mark.parametrize("width,depth,segments,distributed", [(44, 64, 2, False), (20, 3000, 1, False),
+                                                              (60, 32, 2, True)])
+def test_registered_inputs_act_one_cycle_later(ram, width, depth, segments, distributed):
+    """`registered=True`: the same memory as its inputs presented a cycle later (each block's own
+    registers in the "ecp5" variant), read latency 3."""
+    rng = np.random.default_rng(width + depth + 1)
+    dut = BlockRam(width, depth, segments=segments, ram=ram, distributed=distributed, registered=True)
+    assert dut.latency == 3
+    vals = stimulus(rng, width, depth, segments, 300, collide_every=6)
+    tag = f"bramreg-{width}-{depth}-{segments}-{int(distributed)}"
+    run = run_amaranth if ram == "sim" else (lambda *a: run_verilog(*a, tag=tag))
+    got = run(dut, INPUTS, vals, ["r_data"])[:, 0]
+    ref = reference(width, depth, segments, [], [[0, 0, 0, 0]] + vals[:-1])   # the registers' first word
+    checked = [t for t in range(len(vals) - 1) if ref[t] >= 0]
+    assert len(checked) > 200
+    for t in checked:
+        assert got[t] == ref[t], f"{ram} {width}x{depth}: read after edge {t}: {got[t]:#x} != {ref[t]:#x}"
+    with pytest.raises(ValueError, match="registered"):
+        BlockRam(8, 16, writable=False, registered=True)
+
+
 def test_block_plan_counts():
     assert plan_blocks(72, 128) == (36, 512, 1, 2)            # a 2D narrow node: two 36-bit columns
     assert plan_blocks(144, 128) == (36, 512, 1, 4)

@@ -278,6 +278,35 @@ def test_distributed_block_ram_maps_to_lut_ram(tmp_path):
     assert r["flip_flops"] == 2 * ((5 + 84 + 2) + 5 + 84), r
 
 
+class RegisteredCopies(wiring.Component):
+    """Two 72 x 128 BlockRams with registered inputs (two 512 x 36 DP16KD each), written alike and read
+    apart, as the window's node read copies are."""
+
+    def __init__(self):
+        super().__init__({"w_addr": In(7), "w_data": In(72), "w_en": In(1), "r_addr": In(7).array(2),
+                          "r_data": Out(72).array(2)})
+
+    def elaborate(self, platform):
+        from hw.stream.bram import BlockRam
+        m = Module()
+        for k in range(2):
+            m.submodules[f"mem{k}"] = mem = BlockRam(72, 128, ram="ecp5", registered=True)
+            m.d.comb += [mem.w_addr.eq(self.w_addr), mem.w_data.eq(self.w_data), mem.w_en.eq(self.w_en),
+                         mem.r_addr.eq(self.r_addr[k]), self.r_data[k].eq(mem.r_data)]
+        return m
+
+
+def test_registered_block_ram_keeps_a_register_set_per_block(tmp_path):
+    """Every DP16KD of a `registered` BlockRam keeps its own write address (7), enable (1), read address
+    (7) and data slice (36) flip-flops: 4 x 51; merged by Yosys, one register feeds blocks placed far
+    apart (checked without the tag: 7 + 1 + 2 x 7 + 72 = 94 flip-flops)."""
+    src = tmp_path / "regcopies.v"
+    src.write_text(verilog.convert(RegisteredCopies(), name="regcopies"))
+    r = synthesize(src, "regcopies", tmp_path / "out", device="ecp5-85k", place_and_route=False)
+    assert r["block_rams"] == 4, r
+    assert r["flip_flops"] == 4 * (7 + 1 + 7 + 36), r["flip_flops"]
+
+
 class DelayLines(wiring.Component):
     """LINE_GROUP + 1 8-bit values, each delayed 10 stages by a pipeline (hw/pipeline.py): as many delay
     lines of one span, in two groups."""

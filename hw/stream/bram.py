@@ -35,6 +35,12 @@ no DP16KD; a shallow, wide memory (a window copy, a force ring's node copy: 128 
 deep) spends 3/4 of its blocks' bits on nothing, so the core moves such memories into LUT RAM when the
 block RAM would not fit otherwise (hw/stream/core.py, `fit_block_ram`).
 
+A writable memory may register its inputs (`registered=True`, one cycle more: a read's latency 3, a
+write lands at the end of the next cycle): in the "ecp5" variant each block registers its own address,
+enables and data (kept apart in Yosys), so that no route runs from one register to the blocks of a
+memory spread over the die (the 1e4 square: a window copy's read address into one of its six blocks,
+13.6 ns of routing); the other variants register them once.
+
 `blocks()` states the DP16KD count of the "ecp5" variant for either variant (the manifest's budget).
 """
 from __future__ import annotations
@@ -119,18 +125,21 @@ class BlockRam(wiring.Component):
         2: a ROM with a second read port (`r2_addr`, `r2_data`).
     distributed : bool
         LUT RAM instead of block RAM (a writable memory with one read port; module docstring).
+    registered : bool
+        Register the inputs (every block its own in the "ecp5" variant): read latency LATENCY + 1, writes
+        one cycle later (a writable memory with one read port; module docstring).
 
     Members
     -------
     w_addr, w_data, w_en : In
         Write: word `w_addr` takes `w_data` in the parts whose `w_en` bits are set, at the clock edge.
     r_addr : In
-        Read address; `r_data` (Out) holds that word LATENCY = 2 cycles later (`r2_addr`, `r2_data`: the
-        second read port).
+        Read address; `r_data` (Out) holds that word `latency` cycles later (LATENCY = 2, 3 when
+        `registered`; `r2_addr`, `r2_data`: the second read port).
     """
 
     def __init__(self, width: int, depth: int, *, init=None, segments: int = 1, writable: bool = True,
-                 ram: str = "sim", read_ports: int = 1, distributed: bool = False):
+                 ram: str = "sim", read_ports: int = 1, distributed: bool = False, registered: bool = False):
         if ram not in RAM_VARIANTS:
             raise ValueError(f"unknown block RAM variant {ram!r} (known: {', '.join(RAM_VARIANTS)})")
         if width < 1 or depth < 1:
@@ -141,8 +150,11 @@ class BlockRam(wiring.Component):
             raise ValueError(f"{read_ports} read ports: a BlockRam has 1, a ROM 1 or 2 (its port A reads then)")
         if distributed and (not writable or read_ports != 1):
             raise ValueError("a distributed (LUT RAM) BlockRam is a writable memory with one read port")
+        if registered and (not writable or read_ports != 1):
+            raise ValueError("a BlockRam with registered inputs is a writable memory with one read port")
         self.width, self.depth, self.segments, self.writable, self.ram = width, depth, segments, writable, ram
-        self.read_ports, self.distributed = read_ports, distributed
+        self.read_ports, self.distributed, self.registered = read_ports, distributed, registered
+        self.latency = LATENCY + int(registered)
         self.init = [int(v) & ((1 << width) - 1) for v in (init or [])]
         if len(self.init) > depth:
             raise ValueError(f"{len(self.init)} initial words for a depth of {depth}")
@@ -173,10 +185,12 @@ class BlockRam(wiring.Component):
         attrs = {"ram_style": "distributed"} if self.distributed else None
         mem = Memory(shape=unsigned(self.width), depth=self.depth, init=self.init, attrs=attrs)
         m.submodules.mem = mem
+        w_addr, w_data, w_en, r_addr = (delay(m, v, int(self.registered), f"in_{n}", data=n != "w_en") for v, n in
+                                        ((self.w_addr, "w_addr"), (self.w_data, "w_data"), (self.w_en, "w_en"),
+                                         (self.r_addr, "r_addr")))
         if self.writable:
             seg = self.width // self.segments
             wp = mem.write_port(granularity=seg if self.segments > 1 else None)
-            w_addr, w_data, w_en = self.w_addr, self.w_data, self.w_en
             if self.distributed:
                 # the write registered in each copy, as the read address is: a read presented the cycle after
                 # a write still sees it (both land a cycle later). Named to be kept apart in Yosys
@@ -186,7 +200,8 @@ class BlockRam(wiring.Component):
                                         ((w_addr, "w_addr"), (w_data, "w_data"), (w_en, "w_en")))
             m.d.comb += [wp.addr.eq(w_addr), wp.data.eq(w_data),
                          wp.en.eq(w_en if self.segments > 1 else w_en[0])]
-        for addr, data in self._reads():
+        reads = [(r_addr, self.r_data)] + self._reads()[1:]
+        for addr, data in reads:
             if self.distributed:         # the address registered, then the LUT RAM's asynchronous read
                 addr_q = Signal.like(addr, name="r_addr_q", reset_less=True)
                 m.d.sync += addr_q.eq(addr)
@@ -214,26 +229,29 @@ class BlockRam(wiring.Component):
 
         wdata = padded(self.w_data)
         nbytes = -(-total // BYTE)
-        if self.segments > 1:
-            byte_en = [self.w_en[(b * BYTE) // pseg] for b in range(nbytes)]
-        else:
-            byte_en = [self.w_en[0]] * nbytes
-        row_w = self.w_addr[lbits:] if rows > 1 else None
         reads = self._reads()
         outs = [[] for _ in reads]          # per read port, per row: the row's blocks' words
         for r in range(rows):
-            wsel = (row_w == r) if rows > 1 else Const(1, 1)
             dout = [[] for _ in reads]
             for c in range(cols):
                 lo = c * w
+                # the inputs, each block's own registers when `registered` (kept apart in Yosys): the address,
+                # the enables and this block's slice of the data
+                w_addr, w_en, r_addr, di = (
+                    delay(m, v, int(self.registered), f"{n}_r{r}_c{c}{KEEP_APART_TAG}", data=n != "w_en")
+                    for v, n in ((self.w_addr, "w_addr"), (self.w_en, "w_en"), (self.r_addr[:lbits], "r_addr"),
+                                 (Cat(wdata[lo:min(lo + w, total)], Const(0, max(0, lo + w - total))), "di")))
+                if self.segments > 1:
+                    byte_en = [w_en[(b * BYTE) // pseg] for b in range(nbytes)]
+                else:
+                    byte_en = [w_en[0]] * nbytes
+                wsel = (w_addr[lbits:] == r) if rows > 1 else Const(1, 1)
                 bits = [Signal(w, name=f"do{p}_r{r}_c{c}") for p in range(len(reads))]
                 be = [(byte_en[(lo + k * BYTE) // BYTE] if lo + k * BYTE < total else Const(0, 1)) & wsel
                       & Const(int(self.writable), 1) for k in range(w // BYTE)]
-                di = Signal(w, name=f"di_r{r}_c{c}")
-                m.d.comb += di.eq(wdata[lo:lo + w] if lo < total else 0)
                 read_a = (reads[1][0][:lbits], bits[1]) if len(reads) == 2 else None
                 m.submodules[f"bram_r{r}_c{c}"] = self._instance(
-                    w, shift, lbits, di, bits[0], be, self.w_addr[:lbits], self.r_addr[:lbits],
+                    w, shift, lbits, di, bits[0], be, w_addr[:lbits], r_addr,
                     self._initvals(r * d, d, w, lo, total), read_a)
                 for p in range(len(reads)):
                     dout[p].append(bits[p])
@@ -244,7 +262,7 @@ class BlockRam(wiring.Component):
                 # the row's blocks selected column by column, each column by a row register of its own
                 # (kept apart in Yosys): one register for the whole word sat among blocks all over the die
                 # (the 1e4 square's shared Psi table: 13.6 ns of routing to a column's multiplexer)
-                row_r = addr[lbits:]
+                row_r = delay(m, addr[lbits:], int(self.registered), f"row{p}_in", data=True)
                 rsel = Signal.like(row_r, name=f"row{p}_d1", reset_less=True)
                 m.d.sync += rsel.eq(row_r)
                 columns = []

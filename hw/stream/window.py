@@ -5,11 +5,12 @@ step k; the index runs on across steps) lives in slot v mod Wg. The fill writes 
 (`fill`, one a cycle) into every copy through two registers (FILL_FANOUT = 2 cycles: one for all copies,
 behind the store's output, then one in front of each copy, kept apart in Yosys: the store's
 output into every copy's register was the 1e4 square's longest route, a register per 4 copies made more
-wire), so a fill presented in cycle t is written at the end of cycle t + 2; each read port reads its own
-copy. A
+wire; a node read port's copy has one in front of each of its blocks, `BlockRam(registered=True)`), so a
+fill presented in cycle t is written at the end of cycle t + 2; each read port reads its own copy. A
 node read port (`reads`) presents a slot and the node's bank (n % Q) and gets that node's word
-NODE_READ_LATENCY = 4 cycles later: the slot registered in front of the copy (READ_FANOUT = 1, kept
-apart: the lane's slot adder and the route to a far copy were the 1e3 poke's critical path), the block
+NODE_READ_LATENCY = 4 cycles later: the slot registered in front of each block of the copy (READ_FANOUT =
+1, kept apart: the lane's slot adder and the route to a far copy were the 1e3 poke's critical path, then
+one register for a copy's six blocks over the die the 1e4 square's, 13.6 ns of routing), the block
 RAM's 2, then the bank's multiplexer into a register (nextpnr put 4.8 ns of routing between a window
 copy and the multiplexer, which fed an element lane's first subtraction in the same cycle); a group
 read port (`groups`: the node lanes, which retire a whole
@@ -60,7 +61,10 @@ class NodeWindow(wiring.Component):
                 for k in range(self.copies())]
 
     def copy(self, k: int):
-        return BlockRam(self.Q * self.word.bits, self.Wg, ram=self.ram, distributed=k in self.lut_copies)
+        """Copy k: a node read port's copy registers its inputs itself (`registered`: in block RAM every
+        block its own fill and read address, next to it); a group read port's keeps them here."""
+        return BlockRam(self.Q * self.word.bits, self.Wg, ram=self.ram, distributed=k in self.lut_copies,
+                        registered=k < self.n_reads)
 
     def elaborate(self, platform):
         m = Module()
@@ -71,12 +75,13 @@ class NodeWindow(wiring.Component):
         for k, (port, single) in enumerate(ports):
             ring = self.copy(k)
             m.submodules[f"copy{k}"] = ring
+            assert ring.registered == single and ring.latency == LATENCY + READ_FANOUT * single
             for dst, nm in ((ring.w_addr, "addr"), (ring.w_data, "data"), (ring.w_en, "en")):
-                m.d.comb += dst.eq(delay(m, fill[nm], 1, f"copy{k}_fill_{nm}{KEEP_APART_TAG}", data=nm != "en"))
+                m.d.comb += dst.eq(fill[nm] if single else
+                                   delay(m, fill[nm], 1, f"copy{k}_fill_{nm}{KEEP_APART_TAG}", data=nm != "en"))
             if single:
-                m.d.comb += ring.r_addr.eq(delay(m, port.addr, READ_FANOUT, f"copy{k}_read_addr{KEEP_APART_TAG}",
-                                                 data=True))
-                bank = delay(m, port.bank, READ_FANOUT + LATENCY, f"bank{k}", data=True)
+                m.d.comb += ring.r_addr.eq(port.addr)
+                bank = delay(m, port.bank, ring.latency, f"bank{k}", data=True)
                 m.d.comb += port.data.eq(delay(m, segment(ring.r_data, bank, self.word.bits, self.Q), 1,
                                                f"copy{k}_word", data=True))
             else:
