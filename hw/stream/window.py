@@ -9,8 +9,8 @@ wire; a node read port's copy has one in front of each of its blocks, `BlockRam(
 fill presented in cycle t is written at the end of cycle t + 2; each read port reads its own copy. A
 node read port (`reads`) presents a slot and the node's bank (n % Q) and gets that node's word
 NODE_READ_LATENCY = 4 cycles later: the slot registered in front of each block of the copy (READ_FANOUT =
-1, kept apart: the lane's slot adder and the route to a far copy were the 1e3 poke's critical path, then
-one register for a copy's six blocks over the die the 1e4 square's, 13.6 ns of routing), the block
+1, kept apart: the lane's slot adder and the route to a far copy were the 1e3 poke's critical path; one
+register for a copy's six blocks, spread over the die, routed 13.6 ns on the 1e4 square), the block
 RAM's 2, then the bank's multiplexer into a register (nextpnr put 4.8 ns of routing between a window
 copy and the multiplexer, which fed an element lane's first subtraction in the same cycle); a group
 read port (`groups`: the node lanes, which retire a whole
