@@ -305,13 +305,13 @@ def test_arguments_are_checked_before_any_work_and_nothing_is_left_behind(tmp_pa
     assert sorted(p.name for p in tmp_path.iterdir()) == ["existing_dir.npz", "existing_file", "run.npz"]
 
 
-def _placed(d: Path, scene="creep-1d", P=1, Q=1, preset="medium") -> Path:
+def _placed(d: Path, scene="creep-1d", P=1, Q=1, preset="medium", cycles=100) -> Path:
     """A stand-in for `rheo synth`'s output directory: what `rheo report --synth` reads of it."""
     d.mkdir()
     (d / "rheo_core.v").write_text("module rheo_core; endmodule\n")
     (d / "synth.json").write_text(json.dumps({"place_and_route": True, "fmax_mhz": 70.0}))
     (d / "manifest.json").write_text(json.dumps({
-        "verilog": "rheo_core.v", "scene": scene, "preset": preset, "cycles_per_step": {"value": 100},
+        "verilog": "rheo_core.v", "scene": scene, "preset": preset, "cycles_per_step": {"value": cycles},
         "lanes": {"element_lanes_P": P, "pair_lanes": 0, "collision_lanes": 0, "node_lanes_Q": Q}}))
     return d
 
@@ -330,6 +330,21 @@ def test_report_takes_the_measured_fmax_of_its_own_core_only(tmp_path, placed, g
     assert r.returncode == 2 and "Traceback" not in r.stderr and r.stdout == "", r.stderr
     assert all(w in r.stderr for w in words), r.stderr
     assert not (tmp_path / "rep").exists()
+
+
+def test_report_keeps_the_assumed_clock_for_a_core_of_other_cycles(tmp_path):
+    """rheo report --synth DIR whose core (same scene, lanes and preset) takes other cycles a step than the
+    report's core (a `--core phased` build, say): its Fmax is not put on the report's point, and it says so."""
+    d = _placed(tmp_path / "placed", cycles=100)
+    r = rheo("report", "creep-1d", "--presets", "medium", "--synth", d, "--out", tmp_path / "rep", timeout=600)
+    assert r.returncode == 0, r.stderr
+    s = json.loads((tmp_path / "rep" / "summary.json").read_text())
+    cycles = s["fpga"]["cycles_per_step"]["medium"]
+    assert cycles != 100
+    assert f"placed a core of 100 cycles a step, the report's medium core takes {cycles}: its 70 MHz not used" \
+        in r.stdout, r.stdout
+    assert s["fpga"]["clock_mhz_by_preset"] == {"medium": 50.0}
+    assert s["fpga"]["clock_source_by_preset"] == {"medium": "assumed (default)"}
 
 
 def test_a_missing_simulator_is_refused_before_running(tmp_path):
