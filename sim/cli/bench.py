@@ -48,19 +48,20 @@ def run(args) -> int:
         raise UsageError(f"backend '{args.backend}' has no benchmark (available: {', '.join(BENCH_BACKENDS)})")
     if args.backend == "fpga":                      # every argument and tool before any work
         from sim.simulators import check_simulator
-        from sim.synth import check_block_rams, check_device, check_tools
+        from sim.synth import check_block_rams, check_device, check_floorplan_device, check_tools
         check_simulator(args.simulator)
         check_device(args.device)
         check_block_rams(args.block_rams, args.device)
+        check_floorplan_device(args.floorplan, args.device)
         if args.synth is not None:
             _check_synth(args)
         elif args.fmax_mhz is None:
             check_tools(place_and_route=True)
         elif place_and_route_chosen(args):
-            raise UsageError("--router, --placer, --seed, --speed-grade and --block-rams choose how the core is placed and routed: "
-                             "not with --fmax-mhz (no place and route)")
+            raise UsageError("--router, --placer, --seed, --speed-grade, --floorplan and --block-rams choose how the core "
+                             "is placed and routed: not with --fmax-mhz (no place and route)")
     elif place_and_route_chosen(args):
-        raise UsageError("--router, --placer, --seed, --speed-grade and --block-rams belong to --backend fpga")
+        raise UsageError("--router, --placer, --seed, --speed-grade, --floorplan and --block-rams belong to --backend fpga")
     elif (any(v is not None for v in (args.preset, args.fmax_mhz, args.pair_lanes, args.synth)) or args.lanes != 1
           or args.node_lanes != 1 or args.core != "auto"):
         raise UsageError("--preset, --lanes, --node-lanes, --pair-lanes, --core, --fmax-mhz and --synth belong to "
@@ -79,6 +80,7 @@ def run(args) -> int:
                     pair_lanes=args.pair_lanes,
                     simulator=args.simulator, steps=args.hdl_steps, fmax_mhz=args.fmax_mhz, device=args.device,
                     router=args.router, placer=args.placer, seed=args.seed, speed_grade=args.speed_grade,
+                    floorplan=args.floorplan,
                     block_rams=args.block_rams, synth=args.synth,
                     log=None if args.json else (lambda m: print(f"  {m}", flush=True)))
     rows = bench.run(args.backend, sizes=sizes, min_seconds=args.seconds, scene=scene, **fpga)
@@ -99,8 +101,9 @@ def _check_synth(args) -> None:
     """`--synth DIR`: one placed core, whose device, router, placer, seed, speed grade and DP16KD budget are DIR's."""
     from sim.synth import read_placed
     if args.fmax_mhz is not None or place_and_route_chosen(args):
-        raise UsageError("--synth takes the Fmax, router, placer, seed, speed grade and block RAM budget of its place "
-                         "and route: not with --fmax-mhz, --router, --placer, --seed, --speed-grade or --block-rams")
+        raise UsageError("--synth takes the Fmax, router, placer, seed, speed grade, floorplan and block RAM budget of "
+                         "its place and route: not with --fmax-mhz, --router, --placer, --seed, --speed-grade, "
+                         "--floorplan or --block-rams")
     if args.scene is None and args.sizes is not None and len(args.sizes) > 1:
         raise UsageError("--synth DIR holds one core: give one --scene or one --sizes value")
     placed, _ = read_placed(args.synth)

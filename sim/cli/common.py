@@ -75,13 +75,14 @@ def lane_arguments(parser) -> None:
 
 
 # block_rams None: all the device has
-PLACE_AND_ROUTE_DEFAULTS = {"router": "router1", "placer": "heap", "seed": 1, "speed_grade": 6, "block_rams": None}
+PLACE_AND_ROUTE_DEFAULTS = {"router": "router1", "placer": "heap", "seed": 1, "speed_grade": 6, "block_rams": None,
+                            "floorplan": "auto"}
 
 
 def place_and_route_arguments(parser, what: str = "") -> None:
-    """nextpnr's router, placer, seed and speed grade and the streaming core's DP16KD budget (`rheo synth`, `rheo bench --backend
-    fpga`); `what` prefixes the help (e.g. "fpga: ")."""
-    from sim.synth import PLACERS, ROUTERS, SPEED_GRADES
+    """nextpnr's router, placer, seed and speed grade, the floorplan and the streaming core's DP16KD budget (`rheo synth`,
+    `rheo bench --backend fpga`); `what` prefixes the help (e.g. "fpga: ")."""
+    from sim.synth import FLOORPLANS, PLACERS, ROUTERS, SPEED_GRADES
     d = PLACE_AND_ROUTE_DEFAULTS
     parser.add_argument("--router", choices=ROUTERS, default=d["router"],
                         help=f"{what}nextpnr's router (default router1, nextpnr's own; router2 gets through congested "
@@ -94,6 +95,11 @@ def place_and_route_arguments(parser, what: str = "") -> None:
     parser.add_argument("--speed-grade", type=int, choices=SPEED_GRADES, default=d["speed_grade"],
                         help=f"{what}the ECP5 part's speed grade, for nextpnr's timing (default 6, the slowest: "
                              "the LFE5U-85F-6 of common boards; 8 is the fastest part)")
+    parser.add_argument("--floorplan", choices=FLOORPLANS, default=d["floorplan"],
+                        help=f"{what}where nextpnr puts the block RAMs and multipliers: lanes, each lane's own in a "
+                             "stripe of the die beside its logic (hw/stream/floorplan.py; the 1e4 square routes with "
+                             "it); none, wherever nextpnr likes; auto (default): lanes for the streaming core on a "
+                             "device whose sites are known (ecp5-85k), else none")
     parser.add_argument("--block-rams", type=whole_number, default=d["block_rams"], metavar="N",
                         help=f"{what}the streaming core's DP16KD budget (default: all the device has); fewer moves "
                              "more shallow copies into LUT RAM: block RAM, and the routing into it, traded for LUTs")

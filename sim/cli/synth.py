@@ -40,6 +40,7 @@ def run(args) -> int:
     check_block_rams(args.block_rams, args.device)
     check_tools(args.pnr)
     check_netlist_from(args)
+    check_floorplan(args)
     bt = hardware_model(args)
     with output_directory(out) as tmp:             # whole or not at all
         r, man = _synthesize(args, bt, tmp, emit, synthesize)
@@ -51,6 +52,8 @@ def run(args) -> int:
     timing = (f"Fmax {r['fmax_mhz']:.1f} MHz (constraint {args.clock_mhz} MHz, {'met' if r['timing_met'] else 'NOT met'}; "
               f"seed {r['seed']}, speed grade {args.speed_grade})"
               + (f"; netlist of {r['netlist_from']}" if r.get("netlist_from") else "")
+              + (f"; floorplan: {r['floorplan']['cells_placed']} block RAMs and multipliers in "
+                 f"{r['floorplan']['regions']} regions" if r.get("floorplan") else "")
               + (f"; router2 stalled with seed {', '.join(str(st['seed']) for st in r['stalled_seeds'])}"
                  if r.get("stalled_seeds") else "")
               if args.pnr and r.get("fmax_mhz") is not None else
@@ -82,15 +85,30 @@ def check_netlist_from(args) -> None:
         raise BadArgument(f"--netlist-from {src}: not an output directory of `rheo synth` (no synth.ys there)")
 
 
+def check_floorplan(args) -> None:
+    """`--floorplan lanes`, before any work: place and route, a device whose block sites are known, the
+    streaming core (with --core auto the scene decides: sim.synth.floorplan_for)."""
+    from golden.errors import BadArgument
+    from sim.synth import check_floorplan_device
+    if args.floorplan != "lanes":
+        return
+    if not args.pnr:
+        raise BadArgument("--floorplan places blocks for place and route; with --no-pnr there is nothing to place")
+    check_floorplan_device(args.floorplan, args.device)
+    if args.core == "phased":
+        raise BadArgument("--floorplan lanes places the streaming core's lanes, not the phased core's")
+
+
 def _synthesize(args, bt, out: Path, emit, synthesize):
-    from sim.synth import block_ram_capacity
+    from sim.synth import block_ram_capacity, floorplan_for
     man = emit.write(bt, out, lanes=args.lanes, node_lanes=args.node_lanes, core=args.core, ram="ecp5",
                      pair_lanes=args.pair_lanes,
                      dp16kd_budget=block_ram_capacity(args.device) if args.block_rams is None else args.block_rams)
     r = synthesize(out / man["verilog"], man["top"], out, device=args.device, clock_mhz=args.clock_mhz,
                    seed=args.seed, progress=True, place_and_route=args.pnr, router=args.router,
                    placer=args.placer, speed_grade=args.speed_grade,
-                   netlist_from=getattr(args, "netlist_from", None))
+                   netlist_from=getattr(args, "netlist_from", None),
+                   floorplan=floorplan_for(man, args.device, args.floorplan) if args.pnr else None)
     r.update(scene=man["scene"], preset=man["preset"], full_featured=args.full, lanes=man["lanes"],
              elements=man["elements"], nodes=man["nodes"], units_present=[u["unit"] for u in man["units_present"]])
     cps = man["cycles_per_step"]["value"]
