@@ -241,6 +241,7 @@ def placed_directory(d: Path, lanes: int, fmax_mhz: float = 50.0, budget: int = 
     from hw import emit
     man = emit.write(probe_model(TINY), d, lanes, 2, "stream", ram="ecp5", dp16kd_budget=budget)
     placed = {"device": "ecp5-85k", "place_and_route": True, "fmax_mhz": fmax_mhz, "router": "router2", "seed": 3,
+              "floorplan": {"regions": 5, "cells_placed": 77, "netlist": "rheo_core-floorplan.json"},
               "luts": 1111, "flip_flops": 2222, "mult18x18": 33, "block_rams": 44}
     (d / "synth.json").write_text(json.dumps(placed))
     return man
@@ -262,7 +263,7 @@ def rheo_bench(*args):
 def test_bench_fpga_states_the_probe_ports_latency_and_sample_rate_at_rheo_synths_fmax(tmp_path):
     """`rheo bench --backend fpga --scene` of a probe scene: samples through the port on Verilator, the
     measured latency = the manifest's, in microseconds at Fmax, and the device samples per second; with
-    `--synth DIR` the Fmax, resources, router and seed are those of `rheo synth`'s place and route in DIR.
+    `--synth DIR` the Fmax, resources, router, seed and floorplan are those of `rheo synth`'s place and route in DIR.
     A DIR whose Verilog differs by one byte (another block RAM fit, another version) is refused once the
     core is emitted, before the simulator: no Fmax borrowed from another netlist."""
     man = placed_directory(tmp_path / "placed", lanes=2, fmax_mhz=47.5)
@@ -274,7 +275,9 @@ def test_bench_fpga_states_the_probe_ports_latency_and_sample_rate_at_rheo_synth
     assert row["fmax_mhz"] == 47.5 and str(tmp_path / "placed") in row["fmax_source"]
     assert row["resources"] == {"luts": 1111, "flip_flops": 2222, "mult18x18": 33, "block_rams": 44}
     assert row["place_and_route"] == {"router": "router2", "placer": "heap", "seed": 3, "speed_grade": 6,
-                                      "dp16kd_budget": 208}
+                                      "dp16kd_budget": 208,
+                                      "floorplan": {"regions": 5, "cells_placed": 77,
+                                                    "netlist": "rheo_core-floorplan.json"}}
     assert row["probe_latency_us"] == pytest.approx(L / 47.5, rel=1e-12)
     assert row["device_samples_per_s"] == pytest.approx(47.5e6 / (L + 1), rel=1e-12)
     verilog = tmp_path / "placed" / man["verilog"]
