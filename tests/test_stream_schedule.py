@@ -3,7 +3,7 @@
 The replay below knows only the hardware's timing conventions (restated here, not imported): item k of
 a stream runs in lane k % P at slot k // P, its window slot is presented 2 cycles after issue (block RAM
 latency) and read by the copy a cycle later (READ: registered in front of the copy), a filled group
-is written into the window MEM + FILL = 4 cycles after its store read (the block RAM's latency, then
+is written into the window MEM + FILL = 5 cycles after its store read (the block RAM's latency, then
 the register tree in front of the window copies), its contribution is written
 RMW = 3 cycles after its pipeline stage; a read presented in the
 cycle of a write to the same word is undefined. It takes from the schedule only its decisions (the fill
@@ -30,7 +30,7 @@ from hw.stream.schedule import BandwidthError, Latencies, build_schedule, spare_
 
 from conftest import scene_system
 
-MEM, FILL, READ, RMW = 2, 2, 1, 3   # block RAM read latency; the fill's registers before the window copies;
+MEM, FILL, READ, RMW = 2, 3, 1, 3   # block RAM read latency; the fill's registers before the window copies;
                                     # an item's window slot registered before its copy; a force ring word is
                                     # written RMW cycles after its read
 STORE = 1                           # a node lane's result lands in the store a cycle later (registered in the bank)

@@ -54,7 +54,7 @@ import numpy as np
 from .order import StreamOrder
 
 MEMORY = 2            # block RAM: address presented in cycle t, data (from its output register) in t + 2
-FILL_FANOUT = 2       # the fill's registers on its way to each window copy (hw/stream/window.py): one for all
+FILL_FANOUT = 3       # the fill's registers on its way to each window copy (hw/stream/window.py): one for all
                       # copies behind the store's output, then one in front of each copy. The store's
                       # output into every copy's register was a long route (the 1e4 square at P = 6: a LUT and
                       # 13.3 ns of routing, 59.8 MHz); a register per 4 copies made more wire (router2)

@@ -70,15 +70,15 @@ class NodeWindow(wiring.Component):
         m = Module()
         ports = [(p, True) for p in (self.reads if self.n_reads else [])]
         ports += [(p, False) for p in (self.groups if self.n_groups else [])]
-        fill = {nm: delay(m, src, FILL_FANOUT - 1, f"fill_{nm}", data=nm != "en")   # behind the store
+        fill = {nm: delay(m, src, FILL_FANOUT - 2, f"fill_{nm}", data=nm != "en")   # behind the store
                 for src, nm in ((self.fill_addr, "addr"), (self.fill_data, "data"), (self.fill_en, "en"))}
         for k, (port, single) in enumerate(ports):
             ring = self.copy(k)
             m.submodules[f"copy{k}"] = ring
             assert ring.registered == single and ring.latency == LATENCY + READ_FANOUT * single
             for dst, nm in ((ring.w_addr, "addr"), (ring.w_data, "data"), (ring.w_en, "en")):
-                m.d.comb += dst.eq(fill[nm] if single else
-                                   delay(m, fill[nm], 1, f"copy{k}_fill_{nm}{KEEP_APART_TAG}", data=nm != "en"))
+                m.d.comb += dst.eq(delay(m, fill[nm], 1 if single else 2, f"copy{k}_fill_{nm}{KEEP_APART_TAG}",
+                                         data=nm != "en"))
             if single:
                 m.d.comb += ring.r_addr.eq(port.addr)
                 bank = delay(m, port.bank, ring.latency, f"bank{k}", data=True)
