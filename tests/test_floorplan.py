@@ -7,7 +7,7 @@ import statistics
 import pytest
 
 from golden.errors import BadArgument
-from hw.stream.floorplan import lane_floorplan
+from hw.stream.floorplan import lane_floorplan, lane_pair_copies
 from sim.synth import BLOCK_SITES, SynthesisError, floorplan_bels
 
 
@@ -92,3 +92,22 @@ def test_sites_of_the_85k_die():
     assert len(set(sites["DP16KD"])) == 208 and len(set(sites["MULT18X18D"])) == 156    # the LFE5U-85F's
     # as nextpnr 0.11 named two of them in a placement of the 1e4 square (session 20)
     assert "X24/Y70/EBR1" in sites["DP16KD"] and "X31/Y10/MULT18_0" in sites["MULT18X18D"]
+
+
+@pytest.mark.parametrize("P, Pp, dim", [(6, 0, 2), (3, 0, 2), (2, 3, 2), (1, 2, 3)])
+def test_the_fills_relay_groups_are_the_window_copies_of_each_lane_pair(P, Pp, dim):
+    """The window copies each relay of the fill serves (hw/stream/window.py) are those the floorplan puts in one
+    lane pair's stripe: each region of a pair names exactly them."""
+    groups = lane_pair_copies(P, Pp, dim)
+    assert sorted(c for g in groups for c in g) == list(range(2 * P + (dim + 1) * Pp))
+    lanes = [r for r in lane_floorplan(P, Pp, dim) if r is not None and any(p.startswith("window") for p in r)]
+    named = []
+    for lane in lanes:
+        pat = next(p for p in lane if p.startswith("window"))
+        named.append([c for c in range(2 * P + (dim + 1) * Pp) if re.match(pat, f"window.copy{c}.bram_r0_c0")])
+    expect, i = [], 0
+    for count in (P, Pp):
+        lanes, i = named[i:i + count], i + count
+        expect += [sum(lanes[j:j + 2], []) for j in range(0, count, 2)]
+    assert groups == expect
+    assert groups[0] == list(range(4 if P >= 2 else 2))

@@ -117,10 +117,19 @@ def test_node_store_groups_and_host_fields():
 
 # ------------------------------------------------------------------------------------------ NodeWindow
 
-def test_node_window_copies_read_the_filled_groups():
+@pytest.mark.parametrize("fill_groups", [[[0, 1]], [[0, 1], [1, 2, 3]], [[0, 1, 2], [], [3]], [[0, 1, 2, 3, 4]]])
+def test_node_window_refuses_fill_groups_that_do_not_split_its_copies(fill_groups):
+    with pytest.raises(ValueError, match="fill_groups must split the 4 copies"):
+        NodeWindow(NodeWord(2, SQ(4, 14), SQ(4, 14)), 2, 8, node_reads=3, group_reads=1, fill_groups=fill_groups)
+
+
+@pytest.mark.parametrize("fill_groups", [None, [[0, 1], [2, 3]], [[0, 2, 3], [1]]])
+def test_node_window_copies_read_the_filled_groups(fill_groups):
+    """Every copy reads what the fill wrote F cycles after it was presented, whichever copies share a relay
+    register of the fill (one each, the group port's with a node port's, three of four together)."""
     word = NodeWord(2, SQ(4, 14), SQ(4, 14))
     Q, Wg = 2, 8
-    dut = NodeWindow(word, Q, Wg, node_reads=3, group_reads=1)
+    dut = NodeWindow(word, Q, Wg, node_reads=3, group_reads=1, fill_groups=fill_groups)
     rng = np.random.default_rng(2)
     ring = [0] * Wg
     nb = word.bits

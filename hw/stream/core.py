@@ -42,6 +42,7 @@ from .bram import LATENCY, lut_rams, plan_blocks, ram_record
 from .config import StreamConfig
 from .control import Control
 from .element import ElementLane
+from .floorplan import lane_pair_copies
 from .forcering import ForceRing, RunSum
 from .hostport import HostPort, HostSignature
 from .node import NodeLane
@@ -75,7 +76,8 @@ class StreamCore(wiring.Component):
         self.pairs = [PairLane(cfg, lane) for lane in range(cfg.pair_lanes)] if cfg.n_pairs else []
         share_tables(self.pairs, ram)
         reads = 2 * P + (D + 1) * len(self.pairs)
-        self.window = NodeWindow(word, Q, sch.window_groups, reads, 1, ram)
+        pair_copies = lane_pair_copies(P, len(self.pairs), D)
+        self.window = NodeWindow(word, Q, sch.window_groups, reads, 1, ram, fill_groups=pair_copies + [[reads]])
         fe = cfg.formats["fe"].width
         self.rings = [(RunSum if ring.runs else ForceRing)(D, fe, ring.acc_bits, Q, sch.window_groups, ram)
                       for ring in cfg.rings]

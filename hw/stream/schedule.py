@@ -55,9 +55,9 @@ from .order import StreamOrder
 
 MEMORY = 2            # block RAM: address presented in cycle t, data (from its output register) in t + 2
 FILL_FANOUT = 3       # the fill's registers on its way to each window copy (hw/stream/window.py): one for all
-                      # copies behind the store's output, then one in front of each copy. The store's
-                      # output into every copy's register was a long route (the 1e4 square at P = 6: a LUT and
-                      # 13.3 ns of routing, 59.8 MHz); a register per 4 copies made more wire (router2)
+                      # copies behind the store's output, one per lane pair's copies, one in front of each
+                      # copy's blocks. The root into every copy was a long route (the 1e4 square at P = 6,
+                      # floorplanned: 13.5 ns of routing, 71.7 MHz; a register per copy instead: 71.3 MHz)
 READ_FANOUT = 1       # a node read's slot registered in front of its window copy (hw/stream/window.py): the
                       # lane's slot adder and the route to a far copy were one cycle (1e3 poke: 12.6 ns)
 RETIRE_FANOUT = 1     # the retirement registered in each node lane, ring and the window's group port: the

@@ -2,11 +2,12 @@
 
 The ring holds Wg groups (W = Wg Q nodes, Wg a power of two). Virtual group v = k Gs + g (group g of
 step k; the index runs on across steps) lives in slot v mod Wg. The fill writes a whole group word
-(`fill`, one a cycle) into every copy through two registers (FILL_FANOUT = 2 cycles: one for all copies,
-behind the store's output, then one in front of each copy, kept apart in Yosys: the store's
-output into every copy's register was the 1e4 square's longest route, a register per 4 copies made more
-wire; a node read port's copy has one in front of each of its blocks, `BlockRam(registered=True)`), so a
-fill presented in cycle t is written at the end of cycle t + 2; each read port reads its own copy. A
+(`fill`, one a cycle) into every copy through a tree of registers (FILL_FANOUT = 3 cycles: one for all
+copies behind the store's output; one per `fill_groups` group, kept apart in Yosys, the copies of one lane
+pair, which the floorplan puts in one stripe of the die; one in front of each block of a node read port's
+copy, `BlockRam(registered=True)`, or of a group read port's copy: the root into every copy was the 1e4
+square's longest route, 13.5 ns of routing on the floorplanned die, with or without a register per copy
+between), so a fill presented in cycle t is written at the end of cycle t + 3; each read port reads its own copy. A
 node read port (`reads`) presents a slot and the node's bank (n % Q) and gets that node's word
 NODE_READ_LATENCY = 4 cycles later: the slot registered in front of each block of the copy (READ_FANOUT =
 1, kept apart: the lane's slot adder and the route to a far copy were the 1e3 poke's critical path; one
@@ -40,8 +41,13 @@ def NodeReadSignature(word: NodeWord, node_lanes: int, window_groups: int):
 
 class NodeWindow(wiring.Component):
     def __init__(self, word: NodeWord, node_lanes: int, window_groups: int, node_reads: int,
-                 group_reads: int, ram: str = "sim"):
+                 group_reads: int, ram: str = "sim", fill_groups: list[list[int]] | None = None):
         self.word, self.Q, self.Wg, self.ram = word, node_lanes, window_groups, ram
+        copies = node_reads + group_reads
+        self.fill_groups = [[k] for k in range(copies)] if fill_groups is None else [list(g) for g in fill_groups]
+        if sorted(k for g in self.fill_groups for k in g) != list(range(copies)) or not all(self.fill_groups):
+            raise ValueError(f"fill_groups must split the {copies} copies 0 .. {copies - 1} into non-empty groups, "
+                             f"got {fill_groups!r}")
         self.latency, self.node_latency, self.fill_latency = LATENCY, NODE_READ_LATENCY, FILL_FANOUT
         self.n_reads, self.n_groups = node_reads, group_reads
         self.lut_copies: set[int] = set()      # copies in LUT RAM (StreamCore's block RAM fit)
@@ -72,13 +78,18 @@ class NodeWindow(wiring.Component):
         ports += [(p, False) for p in (self.groups if self.n_groups else [])]
         fill = {nm: delay(m, src, FILL_FANOUT - 2, f"fill_{nm}", data=nm != "en")   # behind the store
                 for src, nm in ((self.fill_addr, "addr"), (self.fill_data, "data"), (self.fill_en, "en"))}
+        relay = {}
+        for j, group in enumerate(self.fill_groups):     # one register per group, beside its copies
+            for nm, value in fill.items():
+                r = delay(m, value, 1, f"fill{j}_{nm}{KEEP_APART_TAG}", data=nm != "en")
+                relay.update({(k, nm): r for k in group})
         for k, (port, single) in enumerate(ports):
             ring = self.copy(k)
             m.submodules[f"copy{k}"] = ring
             assert ring.registered == single and ring.latency == LATENCY + READ_FANOUT * single
             for dst, nm in ((ring.w_addr, "addr"), (ring.w_data, "data"), (ring.w_en, "en")):
-                m.d.comb += dst.eq(delay(m, fill[nm], 1 if single else 2, f"copy{k}_fill_{nm}{KEEP_APART_TAG}",
-                                         data=nm != "en"))
+                m.d.comb += dst.eq(relay[k, nm] if single else
+                                   delay(m, relay[k, nm], 1, f"copy{k}_fill_{nm}{KEEP_APART_TAG}", data=nm != "en"))
             if single:
                 m.d.comb += ring.r_addr.eq(port.addr)
                 bank = delay(m, port.bank, ring.latency, f"bank{k}", data=True)
