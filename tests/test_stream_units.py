@@ -252,31 +252,33 @@ def test_force_ring_sums_exactly_with_forwarding_and_first_flags(kind):
 # ------------------------------------------------------------------------------------------ SaturationCounter
 
 def test_saturation_counter_counts_and_flags():
-    events = ["x", "u", "x", "fe"] * 3                    # more reports than one chunk
+    events = ["x", "u", "x", "fe"] * 17          # 68 reports: 9 sums of 8, then 2, then 1
+    n = len(events)
     dut = SaturationCounter(events)
     rng = np.random.default_rng(4)
-    plan = [[int(v) for v in rng.integers(0, 3, 12) * (rng.random(12) < 0.3)] for _ in range(60)]
+    plan = [[int(v) for v in rng.integers(0, 3, n) * (rng.random(n) < 0.3)] for _ in range(60)]
     clear_at = 30
     count, flags, log = 0, 0, []
     expect = {}
 
     def drive(t, get):
-        d = sd([(getattr(dut, f"ev{k}"), plan[t][k] if t < len(plan) else 0) for k in range(12)])
+        d = sd([(getattr(dut, f"ev{k}"), plan[t][k] if t < len(plan) else 0) for k in range(n)])
         d[dut.clear] = int(t == clear_at)
         return d
 
     def sample(t, get):
         log.append((get(dut.count), get(dut.flags)))
 
-    simulate(dut, len(plan) + 5, drive, sample)
-    # reference: an event of cycle s is in `count` from cycle s + 4, in `flags` from s + 2 (registered on
-    # entry); a clear in cycle c zeroes both from c + 1 on, and then only events from cycle c - 2 on (count:
-    # the ones not yet summed) or c on (flags) are in them
-    ev = lambda s_: plan[s_] if 0 <= s_ < len(plan) else [0] * 12
+    simulate(dut, len(plan) + 6, drive, sample)
+    # reference: an event of cycle s is in `count` from cycle s + L (L = 5: entry register, three summing
+    # levels, count), in `flags` from s + 2 (registered on entry); a clear in cycle c zeroes both from c + 1
+    # on, and then only events from cycle c - L + 2 on (count: the ones not yet summed) or c on (flags) are in them
+    L = 5
+    ev = lambda s_: plan[s_] if 0 <= s_ < len(plan) else [0] * n
     qs = sorted(set(events))
     for t in range(len(plan) + 4):
-        lo_c, lo_f = (clear_at - 2, clear_at) if t >= clear_at + 1 else (0, 0)
-        count = sum(sum(ev(s_)) for s_ in range(lo_c, t - 3))
+        lo_c, lo_f = (clear_at - L + 2, clear_at) if t >= clear_at + 1 else (0, 0)
+        count = sum(sum(ev(s_)) for s_ in range(lo_c, t - L + 1))
         flags = 0
         for s_ in range(lo_f, t - 1):
             for k, q in enumerate(events):
@@ -286,6 +288,12 @@ def test_saturation_counter_counts_and_flags():
     for t in range(4, len(plan) + 4):
         assert log[t][0] == expect[t][0], (t, log[t], expect[t])
         assert log[t][1] == expect[t][1], (t, log[t], expect[t])
+
+
+def test_saturation_counter_refuses_more_reports_than_its_levels_sum():
+    SaturationCounter(["x"] * 512)
+    with pytest.raises(ValueError, match="513 saturation reports; the counter sums at most 512"):
+        SaturationCounter(["x"] * 513)
 
 
 # ------------------------------------------------------------------------------------------ HostPort

@@ -3,9 +3,10 @@
 Every lane reports, per saturating quantity, how many of its items saturated that quantity in a cycle
 (PipeArith `saturation_events`, registered in the lane). The reports are registered on entry (they come
 from lanes all over the die: the route and a chunk's adders in one cycle took 12.7 ns on the 1e4 square),
-summed in two registered levels (sums of up to CHUNK reports, then their sum: no long adder tree in one
-cycle, as there are about 15 reports per lane), then added into `count` (saturating at 2^32 - 1): an
-event is in `count` LATENCY = 4 cycles after its lane register. `flags` bit k (quantity `quantities[k]`,
+summed in LEVELS = 3 registered levels of sums of up to FAN_IN = 8 values (no long adder tree in one
+cycle: there are about 15 reports per lane, 110 on the 1e4 square at P = 6, whose one-cycle sum of 14
+chunks arrived at 12.5 ns; at most FAN_IN^LEVELS reports), then added into `count` (saturating at
+2^32 - 1): an event is in `count` LATENCY = 5 cycles after its lane register. `flags` bit k (quantity `quantities[k]`,
 sorted by name as the manifest lists them) is set when any lane reports that quantity, and stays set.
 `clear` zeroes both (events already summed but not yet in `count` are lost with it).
 """
@@ -19,14 +20,18 @@ from ..rtl_fixed import tree_sum
 from .element import SAT_BITS
 
 
-CHUNK = 8
-LATENCY = 4
+FAN_IN = 8
+LEVELS = 3
+LATENCY = LEVELS + 2          # entry register, the levels, count
 
 
 class SaturationCounter(wiring.Component):
     def __init__(self, events: list[str]):
         """`events`: the quantity of each event input ev0, ev1, ..."""
         self.events = list(events)
+        if len(self.events) > FAN_IN ** LEVELS:
+            raise ValueError(f"{len(self.events)} saturation reports; the counter sums at most "
+                             f"{FAN_IN ** LEVELS} ({LEVELS} levels of {FAN_IN})")
         self.quantities = sorted(set(self.events))
         members = {f"ev{k}": In(SAT_BITS) for k in range(len(self.events))}
         members.update({"clear": In(1), "count": Out(32), "flags": Out(max(1, len(self.quantities)))})
@@ -42,13 +47,12 @@ class SaturationCounter(wiring.Component):
             m.d.sync += [self.count.eq(0), self.flags.eq(0)]
         if not evs:
             return m
-        chunks = []
-        for k in range(0, len(evs), CHUNK):
-            c = Signal(16, name=f"chunk{k // CHUNK}")
-            m.d.sync += c.eq(tree_sum(evs[k:k + CHUNK]))
-            chunks.append(c)
-        per_cycle = Signal(16)
-        m.d.sync += per_cycle.eq(tree_sum(chunks))
+        sums = evs
+        for level in range(LEVELS):
+            parts = [sums[k:k + FAN_IN] for k in range(0, len(sums), FAN_IN)]
+            sums = [Signal(16, name=f"sum{level}_{j}") for j in range(len(parts))]
+            m.d.sync += [s.eq(tree_sum(part)) for s, part in zip(sums, parts)]
+        per_cycle, = sums
         hits = Cat(*[Cat(*[ev != 0 for ev, q in zip(evs, self.events) if q == qq]).any() for qq in self.quantities])
         new = self.count + per_cycle
         with m.If(~self.clear):
