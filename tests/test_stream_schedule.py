@@ -3,8 +3,9 @@
 The replay below knows only the hardware's timing conventions (restated here, not imported): item k of
 a stream runs in lane k % P at slot k // P, its window slot is presented 2 cycles after issue (block RAM
 latency) and read by the copy a cycle later (READ: registered in front of the copy), a filled group
-is written into the window MEM + FILL = 5 cycles after its store read (the block RAM's latency, then
-the register tree in front of the window copies), its contribution is written
+is written into the window STORE_RD + MEM + FILL = 6 cycles after the control presents it to the store
+(the group registered in each bank, the block RAM's latency, then the register tree in front of the
+window copies), its contribution is written
 RMW = 3 cycles after its pipeline stage; a read presented in the
 cycle of a write to the same word is undefined. It takes from the schedule only its decisions (the fill
 and retirement cycle of every group, the period T, the window Wg, the prologue A0), replays a few steps
@@ -30,6 +31,7 @@ from hw.stream.schedule import BandwidthError, Latencies, build_schedule, spare_
 
 from conftest import scene_system
 
+STORE_RD = 1                        # the fill's group registered in each store bank
 MEM, FILL, READ, RMW = 2, 3, 1, 3   # block RAM read latency; the fill's registers before the window copies;
                                     # an item's window slot registered before its copy; a force ring word is
                                     # written RMW cycles after its read
@@ -79,7 +81,7 @@ def replay(order, P, Q, lat, T, Wg, fill, retire, A0, steps=3, Pp=None):
     win = defaultdict(list)
     for k in range(steps):
         for g in range(Gs):
-            win[(k * Gs + g) % Wg].append((t0(k) + int(fill[g]) + MEM + FILL, (k, g)))
+            win[(k * Gs + g) % Wg].append((t0(k) + int(fill[g]) + STORE_RD + MEM + FILL, (k, g)))
     for log in win.values():
         log.sort()
 

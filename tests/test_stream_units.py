@@ -84,13 +84,15 @@ def test_node_store_groups_and_host_fields():
     def sample(t, get):
         log.append((get(dut.rd_data), get(dut.h_rdata)))
         p = plan[t]
-        # reference: the read presented now answers in t + 2 (from the words as they are now); the node
-        # lanes' write presented in t - 1 lands now (STORE_WRITE = 1: registered in each bank, busy or not)
+        # reference: the fill's read presented in t - 1 (registered in each bank: STORE_READ_FANOUT = 1) and the
+        # host's presented now answer in t + 2 (from the words as they are now); the node lanes' write
+        # presented in t - 1 lands now (STORE_WRITE = 1: registered in each bank, busy or not)
         if p["busy"]:
-            expect[t + 2] = ("rd", sum(mem[q][p["rd"]] << (q * nb) for q in range(Q)))
+            rd = plan[t - 1]["rd"]
+            expect[t + 2] = ("rd", sum(mem[q][rd] << (q * nb) for q in range(Q)))
             w = plan[t - 1]
             writes = [(q, w["wr"], (w["wdata"] >> (q * nb)) & ((1 << nb) - 1)) for q in range(Q) if w["wen"] >> q & 1]
-            collide = any(a == p["rd"] for _, a, _ in writes)
+            collide = any(a == rd for _, a, _ in writes)
         else:
             expect[t + 2] = ("h", (mem[p["h_bank"]][p["h_addr"]] >> (p["h_field"] * fb)) & ((1 << fb) - 1))
             writes = []

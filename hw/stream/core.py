@@ -219,9 +219,9 @@ class StreamCore(wiring.Component):
                      store.h_addr.eq(node_host("addr")), store.h_bank.eq(node_host("bank")),
                      store.h_field.eq(node_host("field")), store.h_wdata.eq(node_host("wdata")),
                      store.h_we.eq(node_host("we", data=False)), hp.node_rdata.eq(store.h_rdata)]
-        # the fill: the store's group, LATENCY cycles after its read, into every window copy
-        m.d.comb += [win.fill_addr.eq(delay(m, ctl.fill.slot, LATENCY, "fill_slot", data=True)),
-                     win.fill_en.eq(delay(m, ctl.fill.valid, LATENCY, "fill_valid")),
+        # the fill: the store's group, `fill_latency` cycles after the control presents it, into every window copy
+        m.d.comb += [win.fill_addr.eq(delay(m, ctl.fill.slot, store.fill_latency, "fill_slot", data=True)),
+                     win.fill_en.eq(delay(m, ctl.fill.valid, store.fill_latency, "fill_valid")),
                      win.fill_data.eq(store.rd_data)]
 
         # element and pair lanes: issue, window reads, contributions into their rings

@@ -13,9 +13,10 @@ the fill reads a group from the node store, a node lane retires one node of a gr
              bank's multiplexer registered, hw/stream/window.py)
   contrib.   c + s: the pipeline's force (stage s: `Latencies.element` / `.pair`) reads its force ring;
              the sum is written at c + s + RMW (RMW = 3), readable from c + s + RMW + 1
-  fill       t_f[g]: the node store's word g is read; registered in front of each window copy
-             (F = FILL_FANOUT), written into every copy at t_f[g] + M + F, readable by a read presented
-             from t_f[g] + M + F + 1
+  fill       t_f[g]: the control presents group g to the node store, which registers it in each bank
+             and reads it (STORE_READ_FANOUT); registered in front of each window copy (FILL_FANOUT; F =
+             STORE_READ_FANOUT + FILL_FANOUT), written into every copy at t_f[g] + M + F, readable by a read
+             presented from t_f[g] + M + F + 1
   retire     t_r[g]: the node lanes present group g's window and force ring addresses; results at
              t_r[g] + `Latencies.node`, written into the node store S = STORE_WRITE cycles later (the control retires
              at t_r[g] - RETIRE_FANOUT: the node lanes, the rings and the window register the retirement)
@@ -58,6 +59,9 @@ FILL_FANOUT = 3       # the fill's registers on its way to each window copy (hw/
                       # copies behind the store's output, one per lane pair's copies, one in front of each
                       # copy's blocks. The root into every copy was a long route (the 1e4 square at P = 6,
                       # floorplanned: 13.5 ns of routing, 71.7 MHz; a register per copy instead: 71.3 MHz)
+STORE_READ_FANOUT = 1  # the fill's group registered in each store bank, kept apart, before its host multiplexer
+                      # (hw/stream/store.py): the control's counter into the banks' block RAMs in two gaps of
+                      # the floorplan arrived at 11.8 ns (the 1e4 square at P = 6)
 READ_FANOUT = 1       # a node read's slot registered in front of its window copy (hw/stream/window.py): the
                       # lane's slot adder and the route to a far copy were one cycle (1e3 poke: 12.6 ns)
 RETIRE_FANOUT = 1     # the retirement registered in each node lane, ring and the window's group port: the
@@ -195,7 +199,8 @@ class StreamSchedule:
             "bandwidth": self.bandwidth, "prologue_A0": self.issue_start,
             "fill_start": self.fill_start, "retire_start": self.retire_start, "drain": self.drain,
             "run_cycles": "A0 + (n - 1) T + drain + 1",
-            "latencies": {"memory": MEMORY, "fill_fanout": FILL_FANOUT, "read_fanout": READ_FANOUT,
+            "latencies": {"memory": MEMORY, "fill_fanout": FILL_FANOUT,
+                          "store_read_fanout": STORE_READ_FANOUT, "read_fanout": READ_FANOUT,
                           "retire_fanout": RETIRE_FANOUT, "rmw_write": RMW, "a_write": A_WRITE, "store_write": STORE_WRITE,
                           "lookahead": LOOKAHEAD, "saturation_tail": SAT_TAIL,
                           "element": lat.element, "element_state": lat.element_state, "pair": lat.pair,
@@ -234,7 +239,7 @@ def build_schedule(order: StreamOrder, lanes: int, node_lanes: int, lat: Latenci
     E, Pn = len(order.ei), len(order.pair_nodes)
     if Pn and lat.pair <= 0:
         raise ValueError("pairs in the stream but no pair pipeline latency")
-    M, F = MEMORY, FILL_FANOUT
+    M, F = MEMORY, STORE_READ_FANOUT + FILL_FANOUT
     Ce, Cp = -(-E // P), -(-Pn // Pp)
     C = max(Ce, Cp, 1)
     Gs = -(-N // Q)

@@ -4,7 +4,8 @@ Node n (of the streaming order) lives in bank n % Q at word n // Q, its group: o
 holds one group of Q nodes. Each bank is a `BlockRam` of Gs words (read latency 2) whose word has one
 segment per node field, so that the host can write a single x_k or u_k.
 
-While busy, the fill reads group `rd_addr` (all banks, `rd_data` two cycles later) and the node lanes
+While busy, the fill reads group `rd_addr` (all banks, `rd_data` STORE_READ_FANOUT + 2 cycles later: each
+bank registers the group, kept apart, before its host multiplexer) and the node lanes
 write group `wr_addr` (bank q when `wr_en[q]`), which lands STORE_WRITE cycles later: each bank registers
 the write before its pipeline/host multiplexer (hw/stream/schedule.py). While idle, the host reads or writes field `h_field`
 of the node in bank `h_bank`, word `h_addr`; `h_rdata` (the field, raw) two cycles after the address.
@@ -20,13 +21,14 @@ from amaranth.lib.wiring import In, Out
 from ..rtl_fixed import KEEP_APART_TAG
 from .bram import LATENCY, BlockRam, ram_record
 from .nodeword import NodeWord, bits_for, delay, segment
-from .schedule import STORE_WRITE
+from .schedule import STORE_READ_FANOUT, STORE_WRITE
 
 
 class NodeStore(wiring.Component):
     def __init__(self, word: NodeWord, node_lanes: int, groups: int, init_words=None, ram: str = "sim"):
         self.word, self.Q, self.groups, self.ram = word, node_lanes, groups, ram
-        self.latency = LATENCY
+        self.latency = LATENCY                                  # a host read's
+        self.fill_latency = STORE_READ_FANOUT + LATENCY          # the fill's
         self.gbits, self.qbits, self.fbits = bits_for(groups), bits_for(node_lanes), bits_for(word.fields)
         self.init_words = init_words          # per bank: list of node words (ints), or None
         super().__init__({
@@ -56,8 +58,9 @@ class NodeStore(wiring.Component):
             wr_addr = delay(m, self.wr_addr, STORE_WRITE, f"bank{q}_wr_addr{KEEP_APART_TAG}", data=True)
             wr_data = delay(m, segment(self.wr_data, q, w.bits, Q), STORE_WRITE, f"bank{q}_wr_data", data=True)
             wr_en = delay(m, self.wr_en[q], STORE_WRITE, f"bank{q}_wr_en")
+            rd_addr = delay(m, self.rd_addr, STORE_READ_FANOUT, f"bank{q}_rd_addr{KEEP_APART_TAG}", data=True)
             m.d.comb += [
-                bank.r_addr.eq(Mux(self.busy, self.rd_addr, self.h_addr)),
+                bank.r_addr.eq(Mux(self.busy, rd_addr, self.h_addr)),
                 bank.w_addr.eq(Mux(self.busy, wr_addr, self.h_addr)),
                 bank.w_data.eq(Mux(self.busy, wr_data, self.h_wdata.replicate(w.fields))),
                 bank.w_en.eq(Mux(self.busy, wr_en.replicate(w.fields), field_en)),
