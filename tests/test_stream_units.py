@@ -292,6 +292,15 @@ def test_saturation_counter_counts_and_flags():
         assert log[t][1] == expect[t][1], (t, log[t], expect[t])
 
 
+def test_saturation_counter_sums_every_report_at_its_most_without_wrapping():
+    """512 reports of 255 events in one cycle: 130,560 in `count`, beyond 16 bits."""
+    dut = SaturationCounter(["x"] * 512)
+    log = []
+    simulate(dut, 8, lambda t, get: sd([(getattr(dut, f"ev{k}"), 255 if t == 0 else 0) for k in range(512)]),
+             lambda t, get: log.append(get(dut.count)))
+    assert log[-1] == 512 * 255 == 130_560
+
+
 def test_saturation_counter_refuses_more_reports_than_its_levels_sum():
     SaturationCounter(["x"] * 512)
     with pytest.raises(ValueError, match="513 saturation reports; the counter sums at most 512"):

@@ -47,10 +47,12 @@ class SaturationCounter(wiring.Component):
             m.d.sync += [self.count.eq(0), self.flags.eq(0)]
         if not evs:
             return m
+        # wide enough for every report at its most in one cycle (16 bits at least: the square's netlist)
+        width = max(16, (len(evs) * ((1 << SAT_BITS) - 1)).bit_length())
         sums = evs
         for level in range(LEVELS):
             parts = [sums[k:k + FAN_IN] for k in range(0, len(sums), FAN_IN)]
-            sums = [Signal(16, name=f"sum{level}_{j}") for j in range(len(parts))]
+            sums = [Signal(width, name=f"sum{level}_{j}") for j in range(len(parts))]
             m.d.sync += [s.eq(tree_sum(part)) for s, part in zip(sums, parts)]
         per_cycle, = sums
         hits = Cat(*[Cat(*[ev != 0 for ev, q in zip(evs, self.events) if q == qq]).any() for qq in self.quantities])
