@@ -21,13 +21,9 @@ def lane_floorplan(element_lanes: int, pair_lanes: int, dim: int) -> list[list[s
     for name, v in (("element_lanes", element_lanes), ("pair_lanes", pair_lanes), ("dim", dim)):
         if not isinstance(v, int) or v < 0:
             raise ValueError(f"{name} must be a count (an int >= 0), got {v!r}")
-    pairs = []
-    for kind, count, reads in (("el", element_lanes, 2), ("pr", pair_lanes, dim + 1)):
-        lanes = []
-        for k, copies in enumerate(_lane_copies(kind, count, reads, element_lanes)):
-            lanes.append((f"{kind}{k}", [rf"{kind}{k}\.(?!.*\.shared_)", rf"ring_{kind}{k}_r\d+\.",
-                                         rf"window\.copy({'|'.join(map(str, copies))})\."]))
-        pairs += [lanes[i:i + 2] for i in range(0, count, 2)]        # lanes 2j and 2j + 1 share tables
+    pairs = [[(f"{kind}{k}", [rf"{kind}{k}\.(?!.*\.shared_)", rf"ring_{kind}{k}_r\d+\.",
+                              rf"window\.copy({'|'.join(map(str, copies))})\."]) for kind, k, copies in pair]
+             for pair in _lane_pairs(element_lanes, pair_lanes, dim)]
     regions: list[list[str] | None] = []
     for i, pair in enumerate(pairs):
         if i:
@@ -40,19 +36,19 @@ def lane_floorplan(element_lanes: int, pair_lanes: int, dim: int) -> list[list[s
     return regions
 
 
-def _lane_copies(kind: str, count: int, reads: int, element_lanes: int) -> list[range]:
-    """The window copies (NodeWindow's reads) of each lane of one kind: 2 per element lane, then D + 1
-    per pair lane."""
-    first = 0 if kind == "el" else 2 * element_lanes
-    return [range(first + k * reads, first + (k + 1) * reads) for k in range(count)]
+def _lane_pairs(element_lanes: int, pair_lanes: int, dim: int) -> list[list[tuple[str, int, range]]]:
+    """The lanes in die order, in pairs of one kind (lanes 2j and 2j + 1 share tables), each as (kind, index,
+    its window copies: NodeWindow's reads, 2 per element lane, then D + 1 per pair lane)."""
+    pairs, first = [], 0
+    for kind, count, reads in (("el", element_lanes, 2), ("pr", pair_lanes, dim + 1)):
+        lanes = [(kind, k, range(first + k * reads, first + (k + 1) * reads)) for k in range(count)]
+        first += count * reads
+        pairs += [lanes[i:i + 2] for i in range(0, count, 2)]
+    return pairs
 
 
 def lane_pair_copies(element_lanes: int, pair_lanes: int, dim: int) -> list[list[int]]:
     """The window copies of each floorplan lane pair (lanes 2j and 2j + 1 of one kind, whose copies sit in
     one stripe of the die), in copy order: the fill's relay registers serve one group each
     (hw/stream/window.py)."""
-    groups = []
-    for kind, count, reads in (("el", element_lanes, 2), ("pr", pair_lanes, dim + 1)):
-        lanes = _lane_copies(kind, count, reads, element_lanes)
-        groups += [[c for lane in lanes[i:i + 2] for c in lane] for i in range(0, count, 2)]
-    return groups
+    return [[c for _, _, copies in pair for c in copies] for pair in _lane_pairs(element_lanes, pair_lanes, dim)]
