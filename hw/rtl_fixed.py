@@ -99,15 +99,26 @@ class FixedValue:
             raise ValueError(f"reshape from {self.f} to {f} fraction bits would drop bits: use round()")
         return FixedValue(self.raw.shift_left(f - self.f), f)
 
-    def round(self, dst: Shape) -> tuple["FixedValue", Value]:
-        """Round to nearest (ties up) to dst's binary point, then saturate into dst: (value, saturated)."""
+    def rounded(self, dst: Shape) -> "FixedValue":
+        """Round to nearest (ties up) to dst's binary point, exactly (as wide as that needs): the value
+        `round` saturates."""
         s = self.f - dst.f
         raw = self.raw
         if s > 0:
             raw = (raw + (1 << (s - 1))) >> s
         elif s < 0:
             raw = raw.shift_left(-s)
-        return FixedValue(raw, dst.f).saturate(dst)
+        return FixedValue(raw, dst.f)
+
+    def round(self, dst: Shape) -> tuple["FixedValue", Value]:
+        """Round to nearest (ties up) to dst's binary point, then saturate into dst: (value, saturated)."""
+        return self.rounded(dst).saturate(dst)
+
+    def fits(self, dst: Shape) -> bool:
+        """Whether every value raw's shape holds lies in dst's range, so that `saturate` never clamps
+        (the flags of `_out_of_range` are constants)."""
+        n, w = len(self.raw), dst.width - 1 if dst.signed else dst.width
+        return n <= w if not self.raw.shape().signed else (dst.signed and n - 1 <= w)
 
     def saturate(self, dst: Shape) -> tuple["FixedValue", Value]:
         """Clamp into dst (same binary point required): (value, saturated flag).

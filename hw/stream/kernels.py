@@ -35,6 +35,7 @@ A_STAGE = ROM_STAGE + 1           # an element's a at stage 3: the memory's word
 NODE_STAGE = ROM_STAGE + NODE_READ_LATENCY   # x, u at stage 6 (window slot presented at stage 2)
 GROUP_STAGE = ROM_STAGE + 1       # node lanes: x, u at stage 3, the window's group word registered beside the lane
 FORCE_STAGE = LATENCY + 3         # node lanes: the force rings' words masked and registered, then summed in two levels
+CLAMP_STAGE = True                # every lane's saturating results clamped a stage after their arithmetic
 PROBE_REGS = (("P", "x"), ("Pdot", "pdot"), ("Lo", "x"), ("Hi", "x"))   # the probe's registers, their formats
 
 
@@ -65,7 +66,8 @@ def _signals(n, shape, name):
 
 
 def build_element(m, p, fmt, units, valid, name, src, A, Xi, Xj, Ui, Uj, tables=None, dsp="sim") -> Built:
-    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, tables=tables, dsp=dsp)
+    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, tables=tables, dsp=dsp,
+                   clamp_stage=CLAMP_STAGE)
     with ar:
         a_in = ar.input(A, "a", A_STAGE)
         node = lambda vs, q: [ar.input(v, q, NODE_STAGE) for v in vs]
@@ -77,7 +79,8 @@ def build_element(m, p, fmt, units, valid, name, src, A, Xi, Xj, Ui, Uj, tables=
 
 
 def build_pair(m, p, fmt, units, valid, name, src, kernel, X_roles, U_roles, tables=None, dsp="sim") -> Built:
-    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, tables=tables, dsp=dsp)
+    ar = PipeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, tables=tables, dsp=dsp,
+                   clamp_stage=CLAMP_STAGE)
     D = p.dim
     with ar:
         ins = [[ar.input(v, "x", NODE_STAGE) for v in X_roles[r]] for r in range(D + 1)]
@@ -96,7 +99,7 @@ def build_node(m, p, fmt, units, valid, name, src, X, U, Fe, step, probe: ProbeI
     """`probe`: the probe's registers (signals, per dimension), held still during a run: values of no stage.
     Outputs x, u; with a probe also "probe_gate" (the node touches it) and "probe_f" (its force, pfe), both
     to be read at "probe_stage"."""
-    ar = NodeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, dsp=dsp)
+    ar = NodeArith(m, fmt, units, valid, name, src, param_stage=ROM_STAGE, dsp=dsp, clamp_stage=CLAMP_STAGE)
     with ar:
         Xp = [ar.input(v, "x", GROUP_STAGE) for v in X]
         Up = [ar.input(v, "u", GROUP_STAGE) for v in U]
@@ -117,7 +120,7 @@ def build_node(m, p, fmt, units, valid, name, src, X, U, Fe, step, probe: ProbeI
 def build_probe_sample(m, p, fmt, units, valid, name, P, Pprev, dsp="sim") -> Built:
     """The per-sample kernel: P (the sample) and Pprev (the held position) at stage 0 -> P, Pdot, Lo, Hi at
     `stage` (P delayed to it)."""
-    ar = PipeArith(m, fmt, units, valid, name, dsp=dsp)
+    ar = PipeArith(m, fmt, units, valid, name, dsp=dsp, clamp_stage=CLAMP_STAGE)
     with ar:
         Pi = [ar.input(v, "x", 0) for v in P]
         Pdot, Lo, Hi = probe_sample_kernel(ar, p, Pi, [ar.input(v, "x", 0) for v in Pprev])
