@@ -254,7 +254,7 @@ def test_force_ring_sums_exactly_with_forwarding_and_first_flags(kind):
 # ------------------------------------------------------------------------------------------ SaturationCounter
 
 def test_saturation_counter_counts_and_flags():
-    events = ["x", "u", "x", "fe"] * 17          # 68 reports: 9 sums of 8, then 2, then 1
+    events = ["x", "u", "x", "fe"] * 17          # 68 reports: 17 sums of 4, then 5, 2, 1, 1
     n = len(events)
     dut = SaturationCounter(events)
     rng = np.random.default_rng(4)
@@ -272,10 +272,10 @@ def test_saturation_counter_counts_and_flags():
         log.append((get(dut.count), get(dut.flags)))
 
     simulate(dut, len(plan) + 6, drive, sample)
-    # reference: an event of cycle s is in `count` from cycle s + L (L = 5: entry register, three summing
+    # reference: an event of cycle s is in `count` from cycle s + L (L = 7: entry register, five summing
     # levels, count), in `flags` from s + 2 (registered on entry); a clear in cycle c zeroes both from c + 1
     # on, and then only events from cycle c - L + 2 on (count: the ones not yet summed) or c on (flags) are in them
-    L = 5
+    L = 7
     ev = lambda s_: plan[s_] if 0 <= s_ < len(plan) else [0] * n
     qs = sorted(set(events))
     for t in range(len(plan) + 4):
@@ -293,18 +293,18 @@ def test_saturation_counter_counts_and_flags():
 
 
 def test_saturation_counter_sums_every_report_at_its_most_without_wrapping():
-    """512 reports of 255 events in one cycle: 130,560 in `count`, beyond 16 bits."""
-    dut = SaturationCounter(["x"] * 512)
+    """1024 reports of 255 events in one cycle: 261,120 in `count`, beyond 16 bits."""
+    dut = SaturationCounter(["x"] * 1024)
     log = []
-    simulate(dut, 8, lambda t, get: sd([(getattr(dut, f"ev{k}"), 255 if t == 0 else 0) for k in range(512)]),
+    simulate(dut, 10, lambda t, get: sd([(getattr(dut, f"ev{k}"), 255 if t == 0 else 0) for k in range(1024)]),
              lambda t, get: log.append(get(dut.count)))
-    assert log[-1] == 512 * 255 == 130_560
+    assert log[-1] == 1024 * 255 == 261_120
 
 
 def test_saturation_counter_refuses_more_reports_than_its_levels_sum():
-    SaturationCounter(["x"] * 512)
-    with pytest.raises(ValueError, match="513 saturation reports; the counter sums at most 512"):
-        SaturationCounter(["x"] * 513)
+    SaturationCounter(["x"] * 1024)
+    with pytest.raises(ValueError, match="1025 saturation reports; the counter sums at most 1024"):
+        SaturationCounter(["x"] * 1025)
 
 
 # ------------------------------------------------------------------------------------------ HostPort

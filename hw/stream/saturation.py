@@ -3,10 +3,10 @@
 Every lane reports, per saturating quantity, how many of its items saturated that quantity in a cycle
 (PipeArith `saturation_events`, registered in the lane). The reports are registered on entry (they come
 from lanes all over the die: the route and a chunk's adders in one cycle took 12.7 ns on the 1e4 square),
-summed in LEVELS = 3 registered levels of sums of up to FAN_IN = 8 values (no long adder tree in one
+summed in LEVELS = 5 registered levels of sums of up to FAN_IN = 4 values (no long adder tree in one
 cycle: there are about 15 reports per lane, 110 on the 1e4 square at P = 6, whose one-cycle sum of 14
-chunks arrived at 12.5 ns; at most FAN_IN^LEVELS reports), then added into `count` (saturating at
-2^32 - 1): an event is in `count` LATENCY = 5 cycles after its lane register. `flags` bit k (quantity `quantities[k]`,
+chunks arrived at 12.5 ns, and a sum of 8 at 10.6 ns; at most FAN_IN^LEVELS reports), then added into
+`count` (saturating at 2^32 - 1): an event is in `count` LATENCY = 7 cycles after its lane register. `flags` bit k (quantity `quantities[k]`,
 sorted by name as the manifest lists them) is set when any lane reports that quantity, and stays set.
 `clear` zeroes both (events already summed but not yet in `count` are lost with it).
 """
@@ -20,8 +20,8 @@ from ..rtl_fixed import tree_sum
 from .element import SAT_BITS
 
 
-FAN_IN = 8
-LEVELS = 3
+FAN_IN = 4
+LEVELS = 5
 LATENCY = LEVELS + 2          # entry register, the levels, count
 
 

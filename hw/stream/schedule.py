@@ -92,8 +92,8 @@ A_WRITE = 1           # an element lane's new a registered before its a memory's
 STORE_WRITE = 1       # the node lanes' store write registered in each bank before its pipeline/host multiplexer
                       # (hw/stream/store.py): a node lands in the store STORE_WRITE cycles after its result
                       # (the square at f6412ba: 57 late pins on the store's write)
-SAT_TAIL = 7          # from a node's last result stage to the core's saturation count register (lane
-                      # register 2, SaturationCounter.LATENCY 5)
+SAT_TAIL = 9          # from a node's last result stage to the core's saturation count register (lane
+                      # register 2, SaturationCounter.LATENCY 7)
 MAX_WINDOW_GROUPS = 512      # the largest window: one 512 x 36 DP16KD column per 36 bits of a group
 NONE = np.iinfo(np.int64).max // 4
 assert BUSY_FANOUT <= LOOKAHEAD, "a unit's busy copy must be set before its memories' first pipeline use"
