@@ -306,7 +306,10 @@ class PipeArith(Arith):
         if self.clamp_stage and not exact.fits(self.shape(q)):
             exact = FixedValue(self._reg(exact.raw, exact.raw.shape(), what + "_exact"), exact.f)
             stage += 1
-        val, flag = exact.saturate(self.shape(q))
+        return self._registered(*exact.saturate(self.shape(q)), q, stage, gate, what)
+
+    def _registered(self, val: FixedValue, flag, q, stage, gate, what):
+        """Register `val` (in q's format, valid at `stage`) and its saturation flag: both valid at stage + 1."""
         r = self._reg(val.raw, as_shape(self.shape(q)), what)
         if not (isinstance(flag, Const) or (isinstance(flag, bool) and not flag)):
             f = self._reg(flag, 1, what + "_sat")
@@ -390,7 +393,14 @@ class PipeArith(Arith):
 
     def neg(self, a) -> PV:
         s = self._s(a)
-        return self._result((-self.fx(a, s)).rounded(self.shape(a.q)), a.q, s, a.gate, "neg")
+        x, dst = self.fx(a, s), self.shape(a.q)
+        if dst.signed:
+            # -x leaves a signed format only at x = min_raw: decided from x, beside the negation's carry
+            # chain, so that it takes one stage with `clamp_stage` too
+            low = x.raw == dst.min_raw
+            return self._registered(FixedValue.of(dst, Mux(low, dst.max_raw, (-x).raw)[:dst.width]), low,
+                                    a.q, s, a.gate, "neg")
+        return self._result((-x).rounded(dst), a.q, s, a.gate, "neg")
 
     def convert(self, a, q) -> PV:
         s = self._s(a)

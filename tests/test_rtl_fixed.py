@@ -487,3 +487,76 @@ def test_delay_lines_give_each_value_its_delay_later(delay):
     sim.run()
     assert got == items
     assert got_near == items
+
+
+@pytest.mark.hdl
+@pytest.mark.parametrize("clamp_stage", [False, True], ids=["one_stage", "clamp_stage"])
+def test_pipeline_operations_equal_the_bit_true_model_with_or_without_a_clamp_stage(clamp_stage):
+    """PipeArith (hw/pipeline.py) add, sub, sum, neg (into a signed and an unsigned format), convert and mul
+    of two variables, at the formats' extremes and at random: results and saturation flags equal
+    hw/arith.py FixedArith item for item. With `clamp_stage` an operation that can saturate takes two
+    stages (its exact value registered, then clamped), except a signed negation, which knows its only
+    overflow (x = min) from x; one that cannot saturate (a convert into a wider format) takes one."""
+    from hw.arith import FixedArith, V
+    from hw.pipeline import PipeArith
+    fmt = {"x": SQ(3, 12), "y": SQ(2, 13), "s": SQ(2, 10), "n": UQ(3, 12), "w": SQ(6, 14), "p": SQ(1, 14)}
+    ops = {                                   # name -> (kernel on either arithmetic, its stages without / with)
+        "add": (lambda ar, x, y, n: ar.add(x, y, "s"), 1, 2),
+        "sub": (lambda ar, x, y, n: ar.sub(x, y, "s"), 1, 2),
+        "sum": (lambda ar, x, y, n: ar.sum([x, y, x], "s"), 1, 2),
+        "neg": (lambda ar, x, y, n: ar.neg(x), 1, 1),
+        "neg_unsigned": (lambda ar, x, y, n: ar.neg(n), 1, 2),
+        "narrow": (lambda ar, x, y, n: ar.convert(x, "s"), 1, 2),
+        "widen": (lambda ar, x, y, n: ar.convert(x, "w"), 1, 1),
+        "mul": (lambda ar, x, y, n: ar.mul(x, y, "p"), 1 + 1 + DSP_REGS, 2 + 1 + DSP_REGS),
+    }
+    rng = np.random.default_rng(7)
+    ext = lambda f: [f.min_raw, f.max_raw, f.min_raw + 1, 0, 1, f.max_raw - 1]
+    cols = [[int(a), int(b), int(c)] for a in ext(fmt["x"]) for b in ext(fmt["y"]) for c in ext(fmt["n"])[:3]]
+    cols += [[int(rng.integers(f.min_raw, f.max_raw, endpoint=True)) for f in (fmt["x"], fmt["y"], fmt["n"])]
+             for _ in range(300)]
+    xs, ys, ns = (np.array(c, np.int64) for c in zip(*cols))
+    m = Module()
+    valid = Signal()
+    x, y, n = Signal(signed(15)), Signal(signed(15)), Signal(unsigned(15))
+    ar = PipeArith(m, fmt, {}, valid, "lane", clamp_stage=clamp_stage)
+    with ar:
+        ins = ar.input(x, "x", 0), ar.input(y, "y", 0), ar.input(n, "n", 0)
+        outs, sources = {}, {}
+        for name, (fn, _, _) in ops.items():
+            before = len(ar.sat_sources)
+            outs[name] = fn(ar, *ins)
+            sources[name] = ar.sat_sources[before:]         # its saturation flag (none: it cannot saturate)
+    for name, (_, one, two) in ops.items():
+        assert outs[name].stage == (two if clamp_stage else one), (name, outs[name].stage)
+    expected, flags = {}, {}
+    for name, (fn, _, _) in ops.items():
+        fa = FixedArith(fmt)
+        out = fn(fa, V(xs, "x"), V(ys, "y"), V(ns, "n"))
+        expected[name] = [int(v) for v in out.x]
+        flags[name] = fa.sat.total
+    assert flags["add"] and flags["neg"] and flags["neg_unsigned"] and flags["mul"] and not flags["widen"]
+    got, counted = {name: [] for name in ops}, {name: 0 for name in ops}
+    L = max(v.stage for v in outs.values())
+
+    async def tb(ctx):
+        for c in range(len(cols) + L + 1):
+            if c < len(cols):
+                for sig, v in zip((x, y, n), cols[c]):
+                    ctx.set(sig, v)
+            ctx.set(valid, int(c < len(cols)))
+            await ctx.tick()
+            for name, v in outs.items():
+                k = c - v.stage + 1
+                if 0 <= k < len(cols):
+                    got[name].append(ctx.get(v.sig))
+                for src in sources[name]:
+                    if 0 <= c - src.stage + 1 < len(cols):
+                        counted[name] += ctx.get(src.flag)
+    sim = Simulator(m)
+    sim.add_clock(1e-8)
+    sim.add_testbench(tb)
+    sim.run()
+    for name in ops:
+        assert got[name] == expected[name], name
+        assert counted[name] == flags[name], (name, counted[name], flags[name])
