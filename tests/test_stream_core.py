@@ -147,8 +147,8 @@ def test_everything_static_is_known_at_construction():
 
 def test_block_ram_fit_moves_the_cheapest_copies_into_lut_ram():
     """press-2d-rheological, narrow, P = Q = 2: window copies 32 x 144 (4 DP16KD, 18 DPR16X4 a block saved),
-    force-ring node copies 32 x 84 and 32 x 88 in two segments (3 DP16KD, 44 DPR16X4: 14.7 a block): 114
-    DP16KD in all."""
+    force-ring node copies 16 x 84 and 16 x 88 in two segments (the rings' Wr = 16 slots; 3 DP16KD, 22
+    DPR16X4: 7.3 a block): 114 DP16KD in all."""
     bt = bittrue("press-2d-rheological", "narrow")
     fits = {b: build_core(bt, 2, 2, "stream", "ecp5", dp16kd_budget=b) for b in (None, 114, 110, 0)}
     assert [fits[b].block_rams() for b in fits] == [114, 114, 108, 40]    # 0: 114 - 11 x 4 - 10 x 3
@@ -156,7 +156,7 @@ def test_block_ram_fit_moves_the_cheapest_copies_into_lut_ram():
     assert fits[110].lut_memories == ["ring_el0_r0_node_copy", "runsum_el0_r1_node_copy"]
     assert len(fits[0].lut_memories) == 21
     recs = {m["name"]: m for m in fits[110].memories()}
-    assert recs["ring_el0_r0_node_copy"]["dp16kd"] == 0 and recs["ring_el0_r0_node_copy"]["dpr16x4"] == 2 * 11 * 2
+    assert recs["ring_el0_r0_node_copy"]["dp16kd"] == 0 and recs["ring_el0_r0_node_copy"]["dpr16x4"] == 1 * 11 * 2
     with pytest.raises(ValueError, match="dp16kd_budget"):
         build_core(bt, 2, 2, "stream", dp16kd_budget=-1)
     del fits                                  # never elaborated

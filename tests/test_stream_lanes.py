@@ -81,7 +81,7 @@ def test_element_lane_equals_element_kernel():
     items = cfg.element_items(lane)
     elems = cfg.order.elements[items]
     ni, nj = cfg.order.ei[items], cfg.order.ej[items]
-    Wg = cfg.schedule.window_groups
+    Wg, Wr = cfg.schedule.window_groups, cfg.schedule.ring_groups
     # reference
     sat = Saturations()
     ar = FixedArith(bt.formats, bt.ar.units, sat)
@@ -138,7 +138,7 @@ def test_element_lane_equals_element_kernel():
             seq, seq_last = flags
             first = int(c == int(np.flatnonzero(seq == node)[0]))
             last = int(c == int(np.flatnonzero(seq == node)[-1])) if seq_last is not None else 0
-            ref.append((t_issue + c + s, (BASE + node // Q) % Wg, node % Q, first, last, val))
+            ref.append((t_issue + c + s, (BASE + node // Q) % Wr, node % Q, first, last, val))   # its ring slot
     assert contribs == ref
     if not p.fixed_a:
         assert [a_read[c] for c in range(n_items)] == [int(v) for v in new_a.x]
@@ -152,7 +152,7 @@ def test_pair_lane_equals_pair_kernel():
     p, fmt, D = cfg.params, cfg.formats, cfg.dim
     items = cfg.pair_items(lane)
     nodes = cfg.order.pair_nodes[items]
-    Wg, S, s, fb = cfg.schedule.window_groups, dut.depth, dut.stage, fmt["fe"].width
+    Wr, S, s, fb = cfg.schedule.ring_groups, dut.depth, dut.stage, fmt["fe"].width
     # nodes shaken by up to about half a cell, so that some pairs' gates (d <= eps) open
     rng = np.random.default_rng(5)
     edge = np.hypot(*[x[p.j] - x[p.i] for x in st.X]).mean()              # raw units
@@ -195,7 +195,7 @@ def test_pair_lane_equals_pair_kernel():
         for r in range(D + 1):
             n = nodes[c, r]
             first = int(c == int(np.flatnonzero(nodes[:, r] == n)[0]))
-            ref.append((t0 + c + s, r, (BASE + n // Q) % Wg, n % Q, first, [int(ref_val[r, k, c]) for k in range(D)]))
+            ref.append((t0 + c + s, r, (BASE + n // Q) % Wr, n % Q, first, [int(ref_val[r, k, c]) for k in range(D)]))
     assert sorted(got) == sorted(ref)
     assert any(any(v) for *_, v in ref) and any(not any(v) for *_, v in ref)     # gates open and closed
     assert dict(zip(dut.quantities, sats.tolist())) == {q: sat[q] for q in dut.quantities}

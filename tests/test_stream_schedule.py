@@ -8,13 +8,14 @@ is written into the window STORE_RD + MEM + FILL = 6 cycles after the control pr
 window copies), its contribution is written
 RMW = 3 cycles after its pipeline stage; a read presented in the
 cycle of a write to the same word is undefined. It takes from the schedule only its decisions (the fill
-and retirement cycle of every group, the period T, the window Wg, the prologue A0), replays a few steps
+and retirement cycle of every group, the period T, the window Wg, the rings' Wr, the prologue A0), replays a few steps
 of every memory's writes and reads, and checks: every window read (items', node lanes') sees the group
 of its own step, every store read sees the previous step's result, every element's a its previous
 step's value, every contribution is written before its node retires and no other node's write lands in
 its ring word in between (so a ring needs no clearing; a node's result lands in the store STORE = 1 cycle after
 its result stage), one fill, one retirement and one item per lane
-per cycle. T - 1 (or Wg / 2) must break something: the schedule's T and window are the smallest.
+per cycle. T - 1, Wr / 2 (or Wg / 2, when the window is larger than the rings) must break something: the
+schedule's T, rings and window are the smallest.
 """
 from __future__ import annotations
 
@@ -55,9 +56,10 @@ def _latest(log, cycle):
     return tag
 
 
-def replay(order, P, Q, lat, T, Wg, fill, retire, A0, steps=3, Pp=None):
+def replay(order, P, Q, lat, T, Wg, Wr, fill, retire, A0, steps=3, Pp=None, rings_as_one=False):
     """Replay `steps` steps (P element lanes, Pp pair lanes: P unless given); raises Violation naming the
-    first broken rule."""
+    first broken rule. `rings_as_one`: every ring's word (bank, slot) is one word, written by any lane or
+    role (stricter than the hardware, whose rings are apart)."""
     Pp = P if Pp is None else Pp
     N, D1 = order.n_nodes, order.pair_nodes.shape[1] if len(order.pair_nodes) else 0
     Gs = -(-N // Q)
@@ -100,8 +102,9 @@ def replay(order, P, Q, lat, T, Wg, fill, retire, A0, steps=3, Pp=None):
                 for role, n in enumerate(nodes):
                     n = int(n)
                     window_read(k, n, t0(k) + c + MEM + READ, f"{name} item {i} role {role}")
-                    word = (n % Q, (k * Gs + n // Q) % Wg)
-                    rings[(name, lane, role, word)].append((t0(k) + c + stage + RMW, (k, n)))
+                    word = (n % Q, (k * Gs + n // Q) % Wr)
+                    key = word if rings_as_one else (name, lane, role, word)
+                    rings[key].append((t0(k) + c + stage + RMW, (k, n)))
     for log in rings.values():
         log.sort()
     by_owner = defaultdict(list)
@@ -120,7 +123,7 @@ def replay(order, P, Q, lat, T, Wg, fill, retire, A0, steps=3, Pp=None):
                     raise Violation(f"node {n} step {k} retires in cycle {R}, a contribution lands in {max(mine)}")
                 foreign = [(c, o) for c, o in log if min(mine) <= c <= R and o != (k, n)]
                 if foreign:
-                    raise Violation(f"ring {key[:3]}: node {n} step {k}'s word is overwritten by {foreign[0]}")
+                    raise Violation(f"ring {key}: node {n} step {k}'s word is overwritten by {foreign[0]}")
     # node store: the fill of step k reads what step k - 1 retired
     for g in range(Gs):
         writes = sorted((t0(k) + int(retire[g]) + lat.node + STORE, k) for k in range(steps))
@@ -139,15 +142,22 @@ def replay(order, P, Q, lat, T, Wg, fill, retire, A0, steps=3, Pp=None):
 def check(order, P, Q, lat, steps=3, Pp=None):
     sch = build_schedule(order, P, Q, lat, pair_lanes=Pp)
     args = (order, P, Q, lat)
-    replay(*args, sch.period, sch.window_groups, sch.fill, sch.retire, sch.issue_start, steps, Pp)
+    Wg, Wr = sch.window_groups, sch.ring_groups
+    assert Wg % Wr == 0                              # a ring's slot is the window's mod Wr
+    replay(*args, sch.period, Wg, Wr, sch.fill, sch.retire, sch.issue_start, steps, Pp)
+    replay(*args, sch.period, Wg, Wr, sch.fill, sch.retire, sch.issue_start, steps, Pp, rings_as_one=True)
     C = max(-(-len(order.ei) // P), -(-len(order.pair_nodes) // (P if Pp is None else Pp)), 1)
     assert sch.period >= C and sch.slots == C
-    # the period and the window are the smallest these fill / retirement cycles allow
+    # the period, the rings and the window are the smallest these fill / retirement cycles allow
     with pytest.raises(Violation):
-        replay(*args, sch.period - 1, sch.window_groups, sch.fill, sch.retire, sch.issue_start, steps, Pp)
-    if sch.window_groups > 1:
-        with pytest.raises(Violation):
-            replay(*args, sch.period, sch.window_groups // 2, sch.fill, sch.retire, sch.issue_start, steps, Pp)
+        replay(*args, sch.period - 1, Wg, Wr, sch.fill, sch.retire, sch.issue_start, steps, Pp)
+    if Wr > 1:      # the rule judges a group's ring words over all its rings at once: so does this replay
+        with pytest.raises(Violation, match="overwritten|retires"):
+            replay(*args, sch.period, Wg, Wr // 2, sch.fill, sch.retire, sch.issue_start, steps, Pp,
+                   rings_as_one=True)
+    if Wg > Wr:
+        with pytest.raises(Violation, match="sees group|written in that cycle"):
+            replay(*args, sch.period, Wg // 2, Wr, sch.fill, sch.retire, sch.issue_start, steps, Pp)
     return sch
 
 
@@ -215,7 +225,7 @@ def test_replay_catches_a_broken_schedule():
     order = stream_order(system.n_nodes, system.edges, system.topology.pairs)
     lat = LATENCIES[0]
     sch = build_schedule(order, 2, 2, lat)
-    args = (order, 2, 2, lat, sch.period, sch.window_groups)
+    args = (order, 2, 2, lat, sch.period, sch.window_groups, sch.ring_groups)
     late = sch.fill.copy()
     g = int(np.argmax(sch.fill))                       # the last group is filled just in time
     late[g] += 1

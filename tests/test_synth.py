@@ -368,7 +368,7 @@ def test_force_ring_registers_its_flags_per_dimension(tmp_path):
     flag are registered once per dimension, kept apart in Yosys: each drives one dimension's acc_bits
     multiplexers (one flag fed all D acc_bits, the 1e3 poke's critical path: 10.9 ns of routing)."""
     from hw.stream.forcering import ForceRing
-    dut = ForceRing(dim=2, fe_bits=20, acc_bits=24, node_lanes=2, window_groups=64, ram="ecp5")
+    dut = ForceRing(dim=2, fe_bits=20, acc_bits=24, node_lanes=2, ring_groups=64, ram="ecp5")
     src = tmp_path / "ring.v"
     src.write_text(verilog.convert(dut, name="ring"))
     synthesize(src, "ring", tmp_path / "out", device="ecp5-85k", place_and_route=False)

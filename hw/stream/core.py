@@ -79,7 +79,7 @@ class StreamCore(wiring.Component):
         pair_copies = lane_pair_copies(P, len(self.pairs), D)
         self.window = NodeWindow(word, Q, sch.window_groups, reads, 1, ram, fill_groups=pair_copies + [[reads]])
         fe = cfg.formats["fe"].width
-        self.rings = [(RunSum if ring.runs else ForceRing)(D, fe, ring.acc_bits, Q, sch.window_groups, ram)
+        self.rings = [(RunSum if ring.runs else ForceRing)(D, fe, ring.acc_bits, Q, sch.ring_groups, ram)
                       for ring in cfg.rings]
         self.nodes = [NodeLane(cfg, q) for q in range(Q)]
         self.lut_memories = self._fit_block_ram(cfg.dp16kd_budget)
@@ -260,7 +260,7 @@ class StreamCore(wiring.Component):
                          data=what not in ("valid", "last"))
         m.d.comb += win.groups[0].addr.eq(retired("slot", "window"))
         for ring, info in zip(self.rings, cfg.rings):
-            m.d.comb += ring.node_addr.eq(retired("slot", f"ring_{info.name}"))
+            m.d.comb += ring.node_addr.eq(retired("slot", f"ring_{info.name}")[:len(ring.node_addr)])   # mod Wr
         for lane in self.nodes:
             q = lane.q
             m.submodules[f"nd{q}"] = lane

@@ -15,7 +15,8 @@ Item k of the element stream runs in lane k % P at slot k // P of every step (hw
              registered beside the a memory, hw/stream/schedule.py)
   `stage`    contributions: +fe to node i, -fe to node j, presented by node: the lower node's to the
              lane's ForceRing (`contrib_lo`), the higher node's to its RunSum (`contrib_hi`: the stream is
-             sorted by higher node, so a lane's contributions to it come in runs; hw/stream/forcering.py)
+             sorted by higher node, so a lane's contributions to it come in runs; hw/stream/forcering.py),
+             each at its ring slot: the window slot mod Wr
 
 The function units' ROMs are the lane's own, or shared with the next lane (`tables`, a side of a
 hw/stream/tables.py TablePair that the core assigns; the lane of side 0 holds them and lists them in its
@@ -57,7 +58,7 @@ class ElementLane(wiring.Component):
         self.stage = cfg.element_dry.stage
         self.state_stage = cfg.element_dry.outputs["state_stage"]
         self.quantities = cfg.element_dry.quantities
-        fmt, Q, Wg = cfg.formats, cfg.node_lanes, sch.window_groups
+        fmt, Q, Wg, Wr = cfg.formats, cfg.node_lanes, sch.window_groups, sch.ring_groups
         self.a_bits = fmt["a"].width
         self.has_a = not cfg.params.fixed_a
         self.pbits = bits_for(self.depth)
@@ -66,8 +67,8 @@ class ElementLane(wiring.Component):
             "issue": In(IssueSignature(sch.slots, Wg)),
             "ring_i": Out(NodeReadSignature(cfg.word, Q, Wg)),
             "ring_j": Out(NodeReadSignature(cfg.word, Q, Wg)),
-            "contrib_lo": Out(ContributionSignature(cfg.dim, fmt["fe"].width, Q, Wg)),
-            "contrib_hi": Out(ContributionSignature(cfg.dim, fmt["fe"].width, Q, Wg)),
+            "contrib_lo": Out(ContributionSignature(cfg.dim, fmt["fe"].width, Q, Wr)),
+            "contrib_hi": Out(ContributionSignature(cfg.dim, fmt["fe"].width, Q, Wr)),
             "host_pos": In(self.pbits), "host_wdata": In(self.a_bits), "host_we": In(1),
             "host_rdata": Out(self.a_bits),
         }
@@ -163,7 +164,8 @@ class ElementLane(wiring.Component):
         # higher one's to the RunSum
         at = lambda v: ar.delay(v, ROM_STAGE, s)
         sw = at(swap)
-        (slot_i, slot_j), (b_i, b_j) = [at(v) for v in slots2], [at(b) for _, b in roles]
+        rb = bits_for(cfg.schedule.ring_groups)           # a ring's slot: the window's mod Wr
+        (slot_i, slot_j), (b_i, b_j) = [at(v[:rb]) for v in slots2], [at(b) for _, b in roles]
         fb = fmt["fe"].width
         fe_i = [ar.at(v, s) for v in built.outputs["fe"]]
         fe_j = [ar.at(v, s) for v in built.outputs["fe_neg"]]

@@ -1,7 +1,8 @@
 """`ForceRing`: one lane role's force accumulator, a ring of exact sums with a copy for the node lanes.
 
 Every element lane has one for node i and one for node j, every pair lane one per role. A contribution
-(`add`: the node's window slot and bank, D raw words in the "fe" format) is presented in cycle t, the
+(`add`: the node's ring slot, its window slot mod Wr = `ring_groups`, and bank, D raw words in the "fe"
+format) is presented in cycle t, the
 cycle its pipeline stage reads the ring (stage s of the lane); its sum is written at t + RMW (RMW = 3,
 hw/stream/schedule.py):
 
@@ -21,7 +22,7 @@ The items one to three ahead write in the cycles of this item's read and the two
 read cannot see (and the one in its cycle is undefined on a block RAM): their sums come from registers
 instead. The
 `first` flag makes a ring that is never cleared: the word a node takes over still holds the sum of the
-node that had the slot before (W nodes earlier), and the schedule guarantees the node lanes read that sum
+node that had the slot before (Wr Q nodes earlier), and the schedule guarantees the node lanes read that sum
 before this write (hw/stream/schedule.py). II = 1, no stalls; a sum is in the node copy, readable,
 RMW + 1 cycles after its contribution was presented.
 
@@ -42,32 +43,32 @@ from .nodeword import bits_for, delay
 from .schedule import RMW
 
 
-def ContributionSignature(dim: int, fe_bits: int, node_lanes: int, window_groups: int):
+def ContributionSignature(dim: int, fe_bits: int, node_lanes: int, ring_groups: int):
     """A lane's contribution port, from the lane's side: `first` / `last`: the lane's first / last
     contribution to this node in this step (`last` is used by RunSum only)."""
-    return wiring.Signature({"valid": Out(1), "slot": Out(bits_for(window_groups)), "bank": Out(bits_for(node_lanes)),
+    return wiring.Signature({"valid": Out(1), "slot": Out(bits_for(ring_groups)), "bank": Out(bits_for(node_lanes)),
                              "first": Out(1), "last": Out(1), "value": Out(dim * fe_bits)})
 
 
 class ForceRing(wiring.Component):
-    def __init__(self, dim: int, fe_bits: int, acc_bits: int, node_lanes: int, window_groups: int,
+    def __init__(self, dim: int, fe_bits: int, acc_bits: int, node_lanes: int, ring_groups: int,
                  ram: str = "sim"):
         if acc_bits < fe_bits:
             raise ValueError(f"accumulator of {acc_bits} bits narrower than its {fe_bits}-bit contributions")
-        self.D, self.fe_bits, self.acc_bits, self.Q, self.Wg, self.ram = dim, fe_bits, acc_bits, node_lanes, window_groups, ram
+        self.D, self.fe_bits, self.acc_bits, self.Q, self.Wr, self.ram = dim, fe_bits, acc_bits, node_lanes, ring_groups, ram
         self.rmw, self.latency = RMW, LATENCY
         self.lut_copy = False                  # the node copy in LUT RAM (StreamCore's block RAM fit)
-        self.qbits, self.wbits = bits_for(node_lanes), bits_for(window_groups)
+        self.qbits, self.wbits = bits_for(node_lanes), bits_for(ring_groups)
         super().__init__({
-            "add": In(ContributionSignature(dim, fe_bits, node_lanes, window_groups)),
+            "add": In(ContributionSignature(dim, fe_bits, node_lanes, ring_groups)),
             "node_addr": In(self.wbits),
             "node_data": Out(node_lanes * dim * acc_bits),
         })
 
     def _shapes(self):
         """(width, depth, segments) of the read-modify-write ring and of the node lanes' copy."""
-        ring_depth = self.Wg << (self.qbits if self.Q > 1 else 0)
-        return (self.D * self.acc_bits, ring_depth, 1), (self.Q * self.D * self.acc_bits, self.Wg, self.Q)
+        ring_depth = self.Wr << (self.qbits if self.Q > 1 else 0)
+        return (self.D * self.acc_bits, ring_depth, 1), (self.Q * self.D * self.acc_bits, self.Wr, self.Q)
 
     def rams(self, name: str) -> list[dict]:
         (w1, d1, s1), (w2, d2, s2) = self._shapes()
@@ -135,19 +136,19 @@ class RunSum(wiring.Component):
       t + 3  written into segment `bank` of slot `slot` of the node copy if the item was a run's last
     """
 
-    def __init__(self, dim: int, fe_bits: int, acc_bits: int, node_lanes: int, window_groups: int,
+    def __init__(self, dim: int, fe_bits: int, acc_bits: int, node_lanes: int, ring_groups: int,
                  ram: str = "sim"):
-        self.D, self.fe_bits, self.acc_bits, self.Q, self.Wg, self.ram = dim, fe_bits, acc_bits, node_lanes, window_groups, ram
+        self.D, self.fe_bits, self.acc_bits, self.Q, self.Wr, self.ram = dim, fe_bits, acc_bits, node_lanes, ring_groups, ram
         self.rmw, self.latency = RMW, LATENCY
         self.lut_copy = False                  # as ForceRing's
         super().__init__({
-            "add": In(ContributionSignature(dim, fe_bits, node_lanes, window_groups)),
-            "node_addr": In(bits_for(window_groups)),
+            "add": In(ContributionSignature(dim, fe_bits, node_lanes, ring_groups)),
+            "node_addr": In(bits_for(ring_groups)),
             "node_data": Out(node_lanes * dim * acc_bits),
         })
 
     def _shape(self):
-        return self.Q * self.D * self.acc_bits, self.Wg, self.Q
+        return self.Q * self.D * self.acc_bits, self.Wr, self.Q
 
     def rams(self, name: str) -> list[dict]:
         return [ram_record(f"runsum_{name}_node_copy", *self._shape(), distributed=self.lut_copy)]

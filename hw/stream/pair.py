@@ -10,7 +10,7 @@ k // P. Like an element lane with D + 1 roles (the vertex, then the facet's vert
   stage 6    x, u of the D + 1 nodes
   `stage`    per role the pair force (zero where the pair's gate, d <= eps, is closed: the item still
              counts as the lane's contribution, so that a ring word's first contribution always writes),
-             presented to the role's force ring (`contribs[r]`)
+             presented to the role's force ring (`contribs[r]`, at its ring slot: the window slot mod Wr)
 
 The function units' tables are shared by pairs of pair lanes as by element lanes (hw/stream/tables.py).
 II = 1, no stalls; stages known at construction (a dry run), checked at elaboration.
@@ -44,7 +44,7 @@ class PairLane(wiring.Component):
         members = {
             "issue": In(IssueSignature(sch.slots, Wg)),
             "rings": Out(NodeReadSignature(cfg.word, Q, Wg)).array(D + 1),
-            "contribs": Out(ContributionSignature(D, cfg.formats["fe"].width, Q, Wg)).array(D + 1),
+            "contribs": Out(ContributionSignature(D, cfg.formats["fe"].width, Q, sch.ring_groups)).array(D + 1),
         }
         for k, _ in enumerate(self.quantities):
             members[f"sat{k}"] = Out(SAT_BITS)
@@ -114,7 +114,7 @@ class PairLane(wiring.Component):
         fb = fmt["fe"].width
         for r, ((s2, b, f), vals) in enumerate(zip(roles, built.outputs["roles"])):
             port = self.contribs[r]
-            m.d.comb += [port.valid.eq(ar.valid_at(s)), port.slot.eq(ar.delay(s2, ROM_STAGE, s)),
+            m.d.comb += [port.valid.eq(ar.valid_at(s)), port.slot.eq(ar.delay(s2[:len(port.slot)], ROM_STAGE, s)),
                          port.bank.eq(ar.delay(b, ROM_STAGE, s)), port.first.eq(ar.delay(f, ROM_STAGE, s))]
             for k, v in enumerate(vals):
                 m.d.comb += port.value[k * fb:(k + 1) * fb].eq(v)

@@ -30,17 +30,23 @@ read the data path uses is strictly before or after the write it depends on):
   period     T = max(C, a write stage + 1 (an element's a is written before the next step reads it),
              fill span, retirement span (each at most one period), max_g t_r[g] + node + S + 1 - t_f[g]
              (a node is written into the store before the next step's fill reads it))
-  window     Wg groups (W = Wg Q nodes, a power of two groups): the smallest with, for every group g and
-             the virtual group g + Wg that takes its slot next (in this step or a later one):
-             the last read of g (items' ring reads, the node lane's) < the fill write of g + Wg, and
-             the retirement of g < the first force-ring write of g + Wg (so no ring is ever cleared: a
-             lane's first contribution to a node in a step counts the old word as 0)
+  rings      Wr groups (a power of two): the smallest with, for every group g and the virtual group g + Wr
+             that takes its ring word next (in this step or a later one): the retirement of g < the
+             first force-ring write of g + Wr (so no ring is ever cleared: a lane's first contribution to a
+             node in a step counts the old word as 0). A word lives from a node's first contribution to its
+             retirement, which the element pipeline's latency does not lengthen
+  window     Wg groups (W = Wg Q nodes, a power of two, at least Wr): the smallest with the last read of
+             g (items' window reads, the node lane's at retirement) < the fill write of g + Wg. A ring's slot
+             is the window's slot mod Wr (Wr divides Wg): the rings' node copies, LUT RAM when the block
+             RAMs run out, stay Wr deep as a longer pipeline doubles the window (1e4 square, P = 6: Wr = 64,
+             Wg = 128 up to an element latency of 76 stages, 256 beyond)
   run        fill, issue and retirement each run n periods from their own start (A0 + t_f[0], A0,
              A0 + t_r[0], all beyond LOOKAHEAD so that their phase ROMs can be read ahead); the run
              ends `drain` cycles after the last retirement starts: RUN n takes run_cycles(n) cycles.
 
 Window slots run on across steps: group g of step k is virtual group v = k Gs + g (Gs groups a step) in
-slot v mod Wg, so each unit keeps a base register that adds Gs mod Wg at its step boundary.
+slot v mod Wg (ring word v mod Wr), so each unit keeps a base register that adds Gs mod Wg at its step
+boundary.
 
 A scene whose window would exceed `max_window_groups` is refused with `BandwidthError`.
 """
@@ -132,6 +138,7 @@ class StreamSchedule:
     pair_slots: int            # ceil(pairs / Pp)
     period: int                # T
     window_groups: int         # Wg
+    ring_groups: int           # Wr: the force rings' slots (the window's slot mod Wr)
     latencies: Latencies
     fill: np.ndarray
     retire: np.ndarray
@@ -196,6 +203,7 @@ class StreamSchedule:
             "groups_Gs": self.groups, "node_lanes_Q": self.node_lanes, "lanes_P": self.lanes,
             "pair_lanes_Pp": self.pair_lanes,
             "window_groups_Wg": self.window_groups, "window_nodes_W": self.window_nodes,
+            "ring_groups_Wr": self.ring_groups,
             "bandwidth": self.bandwidth, "prologue_A0": self.issue_start,
             "fill_start": self.fill_start, "retire_start": self.retire_start, "drain": self.drain,
             "run_cycles": "A0 + (n - 1) T + drain + 1",
@@ -280,26 +288,35 @@ def build_schedule(order: StreamOrder, lanes: int, node_lanes: int, lat: Latenci
     T = max(bounds.values())
     binding = max(bounds, key=lambda k: (bounds[k], k == "items"))
 
-    # the window: the smallest power of two groups whose slot reuse is safe
-    last_ring_read = np.maximum(rd_last, retire)
+    # the rings, then the window: the smallest powers of two groups whose slot reuse is safe
+    last_window_read = np.maximum(rd_last, retire)
     g = np.arange(Gs)
-    Wg, ok = 1, False
-    while Wg <= max_window_groups:
-        v = g + Wg
-        s, g2 = v // Gs, v % Gs
-        refill = s * T + fill[g2] + M + F                 # the fill write of the slot's next group
-        first_w = np.where(wr_first[g2] < NONE, s * T + wr_first[g2], NONE)
-        if np.all(last_ring_read <= refill - 1) and np.all(retire <= first_w - 1):
-            ok = True
-            break
+
+    def next_group(W):
+        v = g + W
+        return v // Gs, v % Gs                            # the step and group that take g's slot next
+
+    def rings_safe(W):
+        s, g2 = next_group(W)
+        return np.all(retire <= np.where(wr_first[g2] < NONE, s * T + wr_first[g2], NONE) - 1)
+
+    def window_safe(W):
+        s, g2 = next_group(W)
+        return np.all(last_window_read <= s * T + fill[g2] + M + F - 1)     # before the fill write
+
+    Wr = 1
+    while Wr <= max_window_groups and not rings_safe(Wr):
+        Wr *= 2
+    Wg = Wr
+    while Wg <= max_window_groups and not window_safe(Wg):
         Wg *= 2
-    if not ok:
+    if Wg > max_window_groups:
         raise BandwidthError(
             f"the scene's node numbering has bandwidth {order.bandwidth} (after reverse Cuthill-McKee): "
             f"its live nodes do not fit the largest window the streaming core allows, {max_window_groups} "
             f"groups of {Q} nodes ({max_window_groups * Q} nodes); use more node lanes (--node-lanes), "
             f"or the phased core (--core phased)")
-    return StreamSchedule(N, P, Q, Gs, C, Ce, Cp, int(T), int(Wg), lat, fill, retire, first_read, last_read,
+    return StreamSchedule(N, P, Q, Gs, C, Ce, Cp, int(T), int(Wg), int(Wr), lat, fill, retire, first_read, last_read,
                           first_write, last_write, order.bandwidth, binding, bounds, Pp if Pn else 0)
 
 
