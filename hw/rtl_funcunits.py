@@ -426,10 +426,10 @@ class InverseTableUnit(wiring.Component):
       delayed (to cycle 5 for the position, to the output for the `below` and `above` fields);
     - cycle 5: position pos in UQ(S, P): for pos_shift s > 0, q = y K_raw - OFF + 2^(s-1) in one
       subtraction and pos = clamp(q >> s, 0, 2^(S+P)); for s <= 0, pos = min(D << -s, 2^(S+P)) with
-      D = max(y K_raw - OFF, 0); then 0 for y <= Y1, 2^(S+P) for y >= Y2;
-    - cycle 6: idx = pos >> P, frac = pos mod 2^P (idx = 2^S - 1, frac = 2^P at the end point 2^(S+P));
-      one ROM per output of 2^S words, read synchronously at idx. Word j holds tab[j], the difference
-      tab[j+1] - tab[j] and the clip flags of entries j and j+1;
+      D = max(y K_raw - OFF, 0); then 0 for y <= Y1, 2^(S+P) for y >= Y2; registered as idx = pos >> P,
+      frac = pos mod 2^P (idx = 2^S - 1, frac = 2^P at the end point 2^(S+P));
+    - cycle 6: one ROM per output of 2^S words, read synchronously at idx. Word j holds tab[j], the
+      difference tab[j+1] - tab[j] and the clip flags of entries j and j+1;
     - cycle 7: the ROM words registered (a block RAM's clock-to-output delay leaves no room for a
       multiplier in the same cycle);
     - cycles 8 to 11: products frac * (tab[idx+1] - tab[idx]); saturation flags
@@ -492,9 +492,13 @@ class InverseTableUnit(wiring.Component):
         low = p.delay(below1, PRODUCT_LATENCY - 1)
         high = p.delay(above1, PRODUCT_LATENCY - 1)
 
-        # ---- cycle 3: position
+        # ---- cycle 3: position pos, registered as the table index idx = pos >> P and frac = pos mod 2^P
+        # (idx = 2^S - 1, frac = 2^P at the end point pos = 2^(S+P)): the shared tables' address then
+        # leaves a register (nextpnr on the 1e4 square: idx formed from pos in cycle 4 on its way to a
+        # lane pair's shared Psi table arrived at 10.3 ns)
         s = md.pos_shift
-        pos_i = Signal(range(cap + 1))
+        inner = Signal(range(cap))                      # pos below the end point
+        end_i = Signal()                                # pos at the end point
         if s > 0:
             d_max = max(ys.max_raw * md.K_raw - md.OFF, 0)
             s_eff = min(s, d_max.bit_length() + 1)      # shift_round(D, s) = 0 for all D < 2^(s_eff-1)
@@ -502,27 +506,26 @@ class InverseTableUnit(wiring.Component):
             m.d.comb += q.eq(prod_s - (md.OFF - (1 << (s_eff - 1))))
             qs = q.shift_right(s_eff)
             with m.If(q < 0):                           # D < 0: pos = 0
-                m.d.comb += pos_i.eq(0)
+                m.d.comb += inner.eq(0)
             with m.Elif(qs >= cap):
-                m.d.comb += pos_i.eq(cap)
+                m.d.comb += end_i.eq(1)
             with m.Else():
-                m.d.comb += pos_i.eq(qs)
+                m.d.comb += inner.eq(qs)
         else:
             lim = 1 << max(S + P + s, 0)
             dd = Signal(signed(max(len(prod_s), _bits(abs(md.OFF))) + 2))
             m.d.comb += dd.eq(prod_s - md.OFF)
             with m.If(dd < 0):
-                m.d.comb += pos_i.eq(0)
+                m.d.comb += inner.eq(0)
             with m.Elif(dd >= lim):
-                m.d.comb += pos_i.eq(cap)
+                m.d.comb += end_i.eq(1)
             with m.Else():
-                m.d.comb += pos_i.eq(dd[:max(S + P + s, 0)].as_unsigned().shift_left(-s))
-        pos = p.reg(Mux(low, 0, Mux(high, cap, pos_i)), unsigned(S + P + 1), name="pos")
+                m.d.comb += inner.eq(dd[:max(S + P + s, 0)].as_unsigned().shift_left(-s))
+        end = ~low & (high | end_i)                     # pos = 0 for y <= Y1, 2^(S+P) for y >= Y2
+        idx = p.reg(Mux(low, 0, Mux(end, (1 << S) - 1, inner[P:S + P])), unsigned(S), name="idx")
+        frac = p.reg(Mux(low, 0, Mux(end, 1 << P, inner[:P])), unsigned(P + 1), name="frac")
 
         # ---- cycle 4: table ROMs at idx
-        end = pos[S + P]
-        idx = Mux(end, (1 << S) - 1, pos[P:S + P])
-        frac = Mux(end, 1 << P, pos[:P])
         frac5 = p.delay(frac, 2, name="frac")
         rows = []
         for k, (tab, clip, shape) in enumerate(zip(md.tabs, md.clips, md.out_shapes)):
