@@ -21,7 +21,7 @@ from hw.datapath import _node_flags, element_kernel, node_kernel, pair_kernel
 from hw.fixed import Saturations
 from hw.stream.config import StreamConfig
 from hw.stream.element import ElementLane
-from hw.stream.kernels import NODE_STAGE
+from hw.stream.kernels import NODE_STAGE, SLOT_STAGE
 from hw.stream.node import NodeLane
 from hw.stream.pair import PairLane
 
@@ -115,7 +115,7 @@ def test_element_lane_equals_element_kernel():
 
     def sample(t, get):
         if t_issue <= t < t_issue + S + s + 4:
-            c = t - t_issue - 2
+            c = t - t_issue - SLOT_STAGE
             if 0 <= c < n_items:
                 addrs.append((get(dut.ring_i.addr), get(dut.ring_i.bank), get(dut.ring_j.addr), get(dut.ring_j.bank)))
             for port in (dut.contrib_lo, dut.contrib_hi):

@@ -1,8 +1,9 @@
 """The streaming core's static schedule (hw/stream/schedule.py), checked by an independent event replay.
 
 The replay below knows only the hardware's timing conventions (restated here, not imported): item k of
-a stream runs in lane k % P at slot k // P, its window slot is presented 2 cycles after issue (block RAM
-latency) and read by the copy a cycle later (READ: registered in front of the copy), a filled group
+a stream runs in lane k % P at slot k // P, its window slot is formed 2 cycles after issue (block RAM
+latency), registered in the lane (SLOT) and read by the copy a cycle later (READ: registered in front of
+the copy), a filled group
 is written into the window STORE_RD + MEM + FILL = 6 cycles after the control presents it to the store
 (the group registered in each bank, the block RAM's latency, then the register tree in front of the
 window copies), its contribution is written
@@ -36,6 +37,7 @@ STORE_RD = 1                        # the fill's group registered in each store 
 MEM, FILL, READ, RMW = 2, 3, 1, 3   # block RAM read latency; the fill's registers before the window copies;
                                     # an item's window slot registered before its copy; a force ring word is
                                     # written RMW cycles after its read
+SLOT = 1                            # an item's window slot registered in its lane
 STORE = 1                           # a node lane's result lands in the store a cycle later (registered in the bank)
 
 
@@ -101,7 +103,7 @@ def replay(order, P, Q, lat, T, Wg, Wr, fill, retire, A0, steps=3, Pp=None, ring
                 lane, c = i % L, i // L
                 for role, n in enumerate(nodes):
                     n = int(n)
-                    window_read(k, n, t0(k) + c + MEM + READ, f"{name} item {i} role {role}")
+                    window_read(k, n, t0(k) + c + MEM + SLOT + READ, f"{name} item {i} role {role}")
                     word = (n % Q, (k * Gs + n // Q) % Wr)
                     key = word if rings_as_one else (name, lane, role, word)
                     rings[key].append((t0(k) + c + stage + RMW, (k, n)))

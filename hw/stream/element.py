@@ -6,10 +6,11 @@ Item k of the element stream runs in lane k % P at slot k // P of every step (hw
   stage 2    ROM fields (the window slots of nodes i and j: (base + g) mod Wg for their groups g, their
              banks; whether i is the higher node; "first contribution of this lane to this node in this
              step" for the lower and the higher node, "last" for the higher; the per-element parameters)
-             and the a memory's word; the window read ports `ring_i`, `ring_j` get the slots
+             and the a memory's word
   stage 3    a, registered (nextpnr had the memory's output, 4.8 ns of routing and the damper's first
-             operation in one cycle)
-  stage 6    x, u of nodes i and j from the window (the slots registered in front of its copies at 3)
+             operation in one cycle); the slots and banks, registered, at the window read ports `ring_i`,
+             `ring_j` (hw/stream/window.py `present_read`)
+  stage 7    x, u of nodes i and j from the window (the slots registered in front of its copies at 4)
   ...        hw/datapath.py `element_kernel` through PipeArith (hw/stream/kernels.py), one stage per
              operation; the new a is written back A_WRITE cycles after its stage (`state_stage`:
              registered beside the a memory, hw/stream/schedule.py)
@@ -35,12 +36,12 @@ from amaranth.lib.wiring import In, Out
 from ..rtl_fixed import as_shape
 from .bram import BlockRam, ram_record
 from .forcering import ContributionSignature
-from .kernels import A_STAGE, ROM_STAGE, build_element, first_flags, last_flags
+from .kernels import A_STAGE, ROM_STAGE, SLOT_STAGE, build_element, first_flags, last_flags
 from .tables import records as table_records
 from .lanerom import LaneRom
 from .nodeword import bits_for, delay
 from .schedule import A_WRITE
-from .window import NodeReadSignature
+from .window import NodeReadSignature, present_read
 
 SAT_BITS = 8
 
@@ -121,8 +122,7 @@ class ElementLane(wiring.Component):
     def elaborate(self, platform):
         m = Module()
         cfg, p, fmt = self.cfg, self.cfg.params, self.cfg.formats
-        Q, Wg, word = cfg.node_lanes, cfg.schedule.window_groups, cfg.word
-        wb = bits_for(Wg)
+        word = cfg.word
         name = self.prefix
         slot = self.issue.slot[:self.pbits]
         valid0 = Signal(name=f"{name}_valid0")
@@ -138,14 +138,10 @@ class ElementLane(wiring.Component):
             assert len(sig) == len(Signal(shape)), (q, len(sig), shape)
             return sig
 
-        # stage 2: window slots from the ROM and the step's base
+        # stage 2: window slots from the ROM and the step's base, presented at stage 3
         base2 = delay(m, self.issue.base, ROM_STAGE, f"{name}_base", data=True)
-        ports = (self.ring_i, self.ring_j)
-        slots2 = []
-        for (g, b), port in zip(roles, ports):
-            s2 = Signal(wb, name=f"{name}_slot{len(slots2)}")
-            m.d.comb += [s2.eq(base2 + g), port.addr.eq(s2), port.bank.eq(b)]
-            slots2.append(s2)
+        slots3 = [present_read(m, port, base2, g, b, f"{name}_read{k}")
+                  for k, ((g, b), port) in enumerate(zip(roles, (self.ring_i, self.ring_j)))]
         a_mem = self.a_memory()
         m.submodules[f"{name}_a"] = a_mem
         (Xi, Ui), (Xj, Uj) = word.unpack(self.ring_i.data), word.unpack(self.ring_j.data)
@@ -165,7 +161,8 @@ class ElementLane(wiring.Component):
         at = lambda v: ar.delay(v, ROM_STAGE, s)
         sw = at(swap)
         rb = bits_for(cfg.schedule.ring_groups)           # a ring's slot: the window's mod Wr
-        (slot_i, slot_j), (b_i, b_j) = [at(v[:rb]) for v in slots2], [at(b) for _, b in roles]
+        (slot_i, slot_j) = [ar.delay(v[:rb], SLOT_STAGE, s) for v in slots3]
+        (b_i, b_j) = [at(b) for _, b in roles]
         fb = fmt["fe"].width
         fe_i = [ar.at(v, s) for v in built.outputs["fe"]]
         fe_j = [ar.at(v, s) for v in built.outputs["fe_neg"]]

@@ -2,9 +2,9 @@
 
 Each lane kind runs its kernel through `PipeArith` (hw/pipeline.py) with its inputs at fixed stages:
 
-  element  stage 0: issue (ROM and a read); 2: ROM fields and a; 5: x, u of nodes i and j
-           (the window read presented at 2); contributions +fe (i), -fe (j) at `stage`; a at `state_stage`
-  pair     stage 0: issue; 2: ROM fields; 5: x, u of the D + 1 nodes; contributions at `stage`, each
+  element  stage 0: issue (ROM and a read); 2: ROM fields and a; 7: x, u of nodes i and j
+           (the window read presented at 3); contributions +fe (i), -fe (j) at `stage`; a at `state_stage`
+  pair     stage 0: issue; 2: ROM fields; 7: x, u of the D + 1 nodes; contributions at `stage`, each
            zero where the pair's gate is closed (the ring still counts the item: see ForceRing `first`)
   node     stage 0: retirement (window, force ring and ROM reads); 2: x, u, ROM fields; 4: the exact
            sum of the force rings (partial sums of up to 4 rings at 3); x, u results at `stage`; with a
@@ -28,11 +28,13 @@ from ..datapath import ProbeInputs, _node_flags, element_kernel, node_kernel, pa
 from ..pipeline import PBool, PipeArith
 from ..rtl_fixed import as_shape
 from .bram import LATENCY
+from .schedule import SLOT_REG
 from .window import NODE_READ_LATENCY
 
 ROM_STAGE = LATENCY               # ROM fields valid at stage 2
 A_STAGE = ROM_STAGE + 1           # an element's a at stage 3: the memory's word registered beside the lane
-NODE_STAGE = ROM_STAGE + NODE_READ_LATENCY   # x, u at stage 6 (window slot presented at stage 2)
+SLOT_STAGE = ROM_STAGE + SLOT_REG  # a lane presents its window slots at stage 3 (formed at 2, registered)
+NODE_STAGE = SLOT_STAGE + NODE_READ_LATENCY  # x, u at stage 7
 GROUP_STAGE = ROM_STAGE + 1       # node lanes: x, u at stage 3, the window's group word registered beside the lane
 FORCE_STAGE = LATENCY + 3         # node lanes: the force rings' words masked and registered, then summed in two levels
 CLAMP_STAGE = True                # every lane's saturating results clamped a stage after their arithmetic

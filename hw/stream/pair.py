@@ -5,9 +5,9 @@ k // P. Like an element lane with D + 1 roles (the vertex, then the facet's vert
 
   stage 0    `issue`: slot c; the ROM is read
   stage 2    per role: window slot, bank, "first contribution of this lane to this node in this step"
-             (the ROM's fields, dictionary-encoded: hw/stream/lanerom.py); the role's window read port
-             `rings[r]` gets the slot
-  stage 6    x, u of the D + 1 nodes
+             (the ROM's fields, dictionary-encoded: hw/stream/lanerom.py)
+  stage 3    the slots and banks, registered, at the roles' window read ports `rings[r]`
+  stage 7    x, u of the D + 1 nodes
   `stage`    per role the pair force (zero where the pair's gate, d <= eps, is closed: the item still
              counts as the lane's contribution, so that a ring word's first contribution always writes),
              presented to the role's force ring (`contribs[r]`, at its ring slot: the window slot mod Wr)
@@ -24,11 +24,11 @@ from amaranth.lib.wiring import In, Out
 from ..datapath import pair_kernel
 from .element import SAT_BITS, IssueSignature
 from .forcering import ContributionSignature
-from .kernels import ROM_STAGE, build_pair, first_flags
+from .kernels import ROM_STAGE, SLOT_STAGE, build_pair, first_flags
 from .tables import records as table_records
 from .lanerom import LaneRom
 from .nodeword import bits_for, delay
-from .window import NodeReadSignature
+from .window import NodeReadSignature, present_read
 
 
 class PairLane(wiring.Component):
@@ -82,8 +82,7 @@ class PairLane(wiring.Component):
     def elaborate(self, platform):
         m = Module()
         cfg, p, fmt = self.cfg, self.cfg.params, self.cfg.formats
-        D, Wg, word = cfg.dim, cfg.schedule.window_groups, cfg.word
-        wb = bits_for(Wg)
+        D, word = cfg.dim, cfg.word
         name = self.prefix
         slot = self.issue.slot[:self.pbits]
         valid0 = Signal(name=f"{name}_valid0")
@@ -93,9 +92,7 @@ class PairLane(wiring.Component):
         roles, X, U = [], [], []
         for r in range(D + 1):
             g, b, f = [rom.signal(f"{name}_{what}{r}") for what in ("g", "b", "first")]
-            s2 = Signal(wb, name=f"{name}_slot{r}")
-            m.d.comb += [s2.eq(base2 + g), self.rings[r].addr.eq(s2), self.rings[r].bank.eq(b)]
-            roles.append((s2, b, f))
+            roles.append((present_read(m, self.rings[r], base2, g, b, f"{name}_read{r}"), b, f))
             Xr, Ur = word.unpack(self.rings[r].data)
             X.append(Xr)
             U.append(Ur)
@@ -112,9 +109,9 @@ class PairLane(wiring.Component):
         ar, s = built.ar, built.stage
         rom.build(m, f"{name}_rom", slot)
         fb = fmt["fe"].width
-        for r, ((s2, b, f), vals) in enumerate(zip(roles, built.outputs["roles"])):
+        for r, ((s3, b, f), vals) in enumerate(zip(roles, built.outputs["roles"])):
             port = self.contribs[r]
-            m.d.comb += [port.valid.eq(ar.valid_at(s)), port.slot.eq(ar.delay(s2[:len(port.slot)], ROM_STAGE, s)),
+            m.d.comb += [port.valid.eq(ar.valid_at(s)), port.slot.eq(ar.delay(s3[:len(port.slot)], SLOT_STAGE, s)),
                          port.bank.eq(ar.delay(b, ROM_STAGE, s)), port.first.eq(ar.delay(f, ROM_STAGE, s))]
             for k, v in enumerate(vals):
                 m.d.comb += port.value[k * fb:(k + 1) * fb].eq(v)

@@ -8,9 +8,10 @@ go in *groups* of Q consecutive nodes (node n in group n // Q, bank n % Q, one n
 the fill reads a group from the node store, a node lane retires one node of a group, all in one cycle.
 
   issue      slot c: the lane's ROM (and its a word) is read; ROM data at c + M (M = MEMORY = 2)
-  ring read  c + M: the lane presents the node's window slot, registered in front of the copy (R =
-             READ_FANOUT), which reads it at c + M + R; x, u at c + M + R + 3 (the pipeline's stage 6: the
-             bank's multiplexer registered, hw/stream/window.py)
+  ring read  c + M: the lane forms the node's window slot and registers it (SLOT_REG), presenting it at
+             c + M + 1; registered in front of the copy (R = READ_FANOUT), which reads it at c + M + 1 + R;
+             x, u at c + M + 1 + R + 3 (the pipeline's stage 7: the bank's multiplexer registered,
+             hw/stream/window.py)
   contrib.   c + s: the pipeline's force (stage s: `Latencies.element` / `.pair`) reads its force ring;
              the sum is written at c + s + RMW (RMW = 3), readable from c + s + RMW + 1
   fill       t_f[g]: the control presents group g to the node store, which registers it in each bank
@@ -68,6 +69,9 @@ FILL_FANOUT = 3       # the fill's registers on its way to each window copy (hw/
 STORE_READ_FANOUT = 1  # the fill's group registered in each store bank, kept apart, before its host multiplexer
                       # (hw/stream/store.py): the control's counter into the banks' block RAMs in two gaps of
                       # the floorplan arrived at 11.8 ns (the 1e4 square at P = 6)
+SLOT_REG = 1          # a lane's window slot (base + group) registered in the lane before its read port
+                      # (hw/stream/window.py `present_read`): the adder and the route into the copy's blocks'
+                      # registers were one cycle (the 1e4 square: 10.3 ns)
 READ_FANOUT = 1       # a node read's slot registered in front of its window copy (hw/stream/window.py): the
                       # lane's slot adder and the route to a far copy were one cycle (1e3 poke: 12.6 ns)
 RETIRE_FANOUT = 1     # the retirement registered in each node lane, ring and the window's group port: the
@@ -208,7 +212,8 @@ class StreamSchedule:
             "fill_start": self.fill_start, "retire_start": self.retire_start, "drain": self.drain,
             "run_cycles": "A0 + (n - 1) T + drain + 1",
             "latencies": {"memory": MEMORY, "fill_fanout": FILL_FANOUT,
-                          "store_read_fanout": STORE_READ_FANOUT, "read_fanout": READ_FANOUT,
+                          "store_read_fanout": STORE_READ_FANOUT, "slot_register": SLOT_REG,
+                          "read_fanout": READ_FANOUT,
                           "retire_fanout": RETIRE_FANOUT, "rmw_write": RMW, "a_write": A_WRITE, "store_write": STORE_WRITE,
                           "lookahead": LOOKAHEAD, "saturation_tail": SAT_TAIL,
                           "element": lat.element, "element_state": lat.element_state, "pair": lat.pair,
@@ -255,7 +260,7 @@ def build_schedule(order: StreamOrder, lanes: int, node_lanes: int, lat: Latenci
     nodes = [order.ei, order.ej] + [order.pair_nodes[:, r] for r in range(order.pair_nodes.shape[1] if Pn else 0)]
     slots = [se, se] + [sp] * (len(nodes) - 2)
     stage = [lat.element, lat.element] + [lat.pair] * (len(nodes) - 2)
-    first_read, last_read = _node_extremes(N, nodes, [c + M + READ_FANOUT for c in slots])
+    first_read, last_read = _node_extremes(N, nodes, [c + M + SLOT_REG + READ_FANOUT for c in slots])
     first_write, last_write = _node_extremes(N, nodes, [c + s + RMW for c, s in zip(slots, stage)])
 
     rd_first = _by_group(first_read, Q, Gs, NONE, np.min)

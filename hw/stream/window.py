@@ -21,14 +21,14 @@ The copies listed in `lut_copies` are LUT RAM (`BlockRam(distributed=True)`, the
 """
 from __future__ import annotations
 
-from amaranth.hdl import Module
+from amaranth.hdl import Module, Signal
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
 from ..rtl_fixed import KEEP_APART_TAG
 from .bram import LATENCY, BlockRam, ram_record
 from .nodeword import NodeWord, bits_for, delay, segment
-from .schedule import FILL_FANOUT, READ_FANOUT
+from .schedule import FILL_FANOUT, READ_FANOUT, SLOT_REG
 
 NODE_READ_LATENCY = READ_FANOUT + LATENCY + 1
 
@@ -37,6 +37,18 @@ def NodeReadSignature(word: NodeWord, node_lanes: int, window_groups: int):
     """A node read port, from the reader's side: slot and bank out, the node word in (4 cycles later)."""
     return wiring.Signature({"addr": Out(bits_for(window_groups)), "bank": Out(bits_for(node_lanes)),
                              "data": In(word.bits)})
+
+
+def present_read(m: Module, port, base, group, bank, name: str):
+    """A lane's read of the node in window group `group` (its slot (base + group) mod Wg) and bank `bank`
+    on read port `port`: slot and bank registered in the lane (SLOT_REG = 1 cycle) before the port.
+    Returns the slot's register (a ring's slot is its low bits)."""
+    assert SLOT_REG == 1
+    slot = Signal(len(port.addr), name=f"{name}_slot", reset_less=True)
+    bank_r = Signal(len(port.bank), name=f"{name}_bank", reset_less=True)
+    m.d.sync += [slot.eq(base + group), bank_r.eq(bank)]
+    m.d.comb += [port.addr.eq(slot), port.bank.eq(bank_r)]
+    return slot
 
 
 class NodeWindow(wiring.Component):
