@@ -23,7 +23,7 @@ Schedule (as soon as possible, no stalls; II = 1):
   convert, select: 1 stage; comparisons and boolean logic: 0 stages (combinational, folded into the select
   that uses them); constants and per-phase values (step counter): no stage at all;
 - `clamp_stage` (the streaming core's lanes): an operation whose result can saturate takes one stage more,
-  its exact rounded value registered before the clamp. In one stage, the carry chain's top bits decided
+  its exact rounded value registered before the clamp; a comparison of values takes one stage, registered. In one stage, the carry chain's top bits decided
   the clamp, whose select fanned out to every bit of the result (nextpnr on the 1e4 square: a product's
   rounding into its register, 11.3 ns, 4.1 of them on that fan-out; a window word's saturating
   difference into a multiplier's operand register, 11.6 ns);
@@ -407,14 +407,21 @@ class PipeArith(Arith):
         return self._result(self.fx(a, s).rounded(self.shape(q)), q, s, a.gate, "cvt")
 
     def le(self, a, b) -> PBool:
-        s = self._stage(a, b)
-        ss = 0 if s is None else s
-        return PBool(self.fx(a, ss) <= self.fx(b, ss), s, self._gate(a, b))
+        return self._compare(a, b, lambda x, y: x <= y)
 
     def lt(self, a, b) -> PBool:
+        return self._compare(a, b, lambda x, y: x < y)
+
+    def _compare(self, a, b, fn) -> PBool:
+        """A comparison: combinational at its operands' stage, or with `clamp_stage` registered (a stage
+        later), so that no carry chain drives a select's fan-out in the same cycle."""
         s = self._stage(a, b)
         ss = 0 if s is None else s
-        return PBool(self.fx(a, ss) < self.fx(b, ss), s, self._gate(a, b))
+        out = fn(self.fx(a, ss), self.fx(b, ss))
+        if self.clamp_stage and s is not None:
+            out, s = self._reg(out, 1, "cmp"), s + 1
+            self.valid_at(s)
+        return PBool(out, s, self._gate(a, b))
 
     def _bool(self, fn, *args) -> PBool:
         args = [a if isinstance(a, PBool) else PBool(Const(int(bool(a)), 1), None) for a in args]

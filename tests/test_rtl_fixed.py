@@ -492,11 +492,12 @@ def test_delay_lines_give_each_value_its_delay_later(delay):
 @pytest.mark.hdl
 @pytest.mark.parametrize("clamp_stage", [False, True], ids=["one_stage", "clamp_stage"])
 def test_pipeline_operations_equal_the_bit_true_model_with_or_without_a_clamp_stage(clamp_stage):
-    """PipeArith (hw/pipeline.py) add, sub, sum, neg (into a signed and an unsigned format), convert and mul
-    of two variables, at the formats' extremes and at random: results and saturation flags equal
-    hw/arith.py FixedArith item for item. With `clamp_stage` an operation that can saturate takes two
-    stages (its exact value registered, then clamped), except a signed negation, which knows its only
-    overflow (x = min) from x; one that cannot saturate (a convert into a wider format) takes one."""
+    """PipeArith (hw/pipeline.py) add, sub, sum, neg (into a signed and an unsigned format), convert, mul
+    of two variables and selects by comparisons, at the formats' extremes and at random: results and
+    saturation flags equal hw/arith.py FixedArith item for item. With `clamp_stage` an operation that can
+    saturate takes two stages (its exact value registered, then clamped), except a signed negation, which
+    knows its only overflow (x = min) from x; one that cannot saturate (a convert into a wider format)
+    takes one; a comparison takes one (registered) instead of none."""
     from hw.arith import FixedArith, V
     from hw.pipeline import PipeArith
     fmt = {"x": SQ(3, 12), "y": SQ(2, 13), "s": SQ(2, 10), "n": UQ(3, 12), "w": SQ(6, 14), "p": SQ(1, 14)}
@@ -509,6 +510,8 @@ def test_pipeline_operations_equal_the_bit_true_model_with_or_without_a_clamp_st
         "narrow": (lambda ar, x, y, n: ar.convert(x, "s"), 1, 2),
         "widen": (lambda ar, x, y, n: ar.convert(x, "w"), 1, 1),
         "mul": (lambda ar, x, y, n: ar.mul(x, y, "p"), 1 + 1 + DSP_REGS, 2 + 1 + DSP_REGS),
+        "min": (lambda ar, x, y, n: ar.select(ar.lt(x, y), x, y), 2, 3),     # y converted (1 or 2 stages)
+        "le_or": (lambda ar, x, y, n: ar.select(ar.le(x, y) | ar.lt(ar.neg(x), y), x, ar.neg(x)), 2, 3),
     }
     rng = np.random.default_rng(7)
     ext = lambda f: [f.min_raw, f.max_raw, f.min_raw + 1, 0, 1, f.max_raw - 1]
