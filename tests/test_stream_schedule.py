@@ -4,7 +4,7 @@ The replay below knows only the hardware's timing conventions (restated here, no
 a stream runs in lane k % P at slot k // P, its window slot is formed 2 cycles after issue (block RAM
 latency), registered in the lane (SLOT) and read by the copy a cycle later (READ: registered in front of
 the copy), a filled group
-is written into the window STORE_RD + MEM + FILL = 6 cycles after the control presents it to the store
+is written into the window STORE_RD + MEM + FILL = 7 cycles after the control presents it to the store
 (the group registered in each bank, the block RAM's latency, then the register tree in front of the
 window copies), its contribution is written
 RMW = 3 cycles after its pipeline stage; a read presented in the
@@ -34,7 +34,7 @@ from hw.stream.schedule import BandwidthError, Latencies, build_schedule, spare_
 from conftest import scene_system
 
 STORE_RD = 1                        # the fill's group registered in each store bank
-MEM, FILL, READ, RMW = 2, 3, 1, 3   # block RAM read latency; the fill's registers before the window copies;
+MEM, FILL, READ, RMW = 2, 4, 1, 3   # block RAM read latency; the fill's registers before the window copies;
                                     # an item's window slot registered before its copy; a force ring word is
                                     # written RMW cycles after its read
 SLOT = 1                            # an item's window slot registered in its lane

@@ -146,7 +146,7 @@ def test_node_window_copies_read_the_filled_groups(fill_groups):
             d[dut.reads[k].addr], d[dut.reads[k].bank] = p["reads"][k]
         return d
 
-    F = 3          # a fill presented in cycle t is written at the end of cycle t + F (the register tree)
+    F = 4          # a fill presented in cycle t is written at the end of cycle t + F (the register tree)
     R = 1          # a node read's slot presented in cycle t is read in cycle t + R (registered in front of its copy)
 
     def sample(t, get):

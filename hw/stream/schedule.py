@@ -62,10 +62,12 @@ import numpy as np
 from .order import StreamOrder
 
 MEMORY = 2            # block RAM: address presented in cycle t, data (from its output register) in t + 2
-FILL_FANOUT = 3       # the fill's registers on its way to each window copy (hw/stream/window.py): one for all
-                      # copies behind the store's output, one per lane pair's copies, one in front of each
-                      # copy's blocks. The root into every copy was a long route (the 1e4 square at P = 6,
-                      # floorplanned: 13.5 ns of routing, 71.7 MHz; a register per copy instead: 71.3 MHz)
+FILL_FANOUT = 4       # the fill's registers on its way to each window copy (hw/stream/window.py): two for all
+                      # copies behind the store's output (one for the slot and enable), one per lane pair's
+                      # copies, one per copy (the slot and enable), one in front of each copy's blocks. The root
+                      # into every copy was a long route (the 1e4 square at P = 6, floorplanned: 13.5 ns of
+                      # routing, 71.7 MHz; a register per copy instead: 71.3 MHz); a lane pair's slot into its
+                      # copies' 24 blocks, 10.5 ns
 STORE_READ_FANOUT = 1  # the fill's group registered in each store bank, kept apart, before its host multiplexer
                       # (hw/stream/store.py): the control's counter into the banks' block RAMs in two gaps of
                       # the floorplan arrived at 11.8 ns (the 1e4 square at P = 6)

@@ -2,12 +2,14 @@
 
 The ring holds Wg groups (W = Wg Q nodes, Wg a power of two). Virtual group v = k Gs + g (group g of
 step k; the index runs on across steps) lives in slot v mod Wg. The fill writes a whole group word
-(`fill`, one a cycle) into every copy through a tree of registers (FILL_FANOUT = 3 cycles: one for all
-copies behind the store's output; one per `fill_groups` group, kept apart in Yosys, the copies of one lane
-pair, which the floorplan puts in one stripe of the die; one in front of each block of a node read port's
-copy, `BlockRam(registered=True)`, or of a group read port's copy: the root into every copy was the 1e4
-square's longest route, 13.5 ns of routing on the floorplanned die, with or without a register per copy
-between), so a fill presented in cycle t is written at the end of cycle t + 3; each read port reads its own copy. A
+(`fill`, one a cycle) into every copy through a tree of registers (FILL_FANOUT = 4 cycles: the word two
+for all copies behind the store's output, the slot and enable one; one per `fill_groups` group, kept
+apart in Yosys, the copies of one lane pair, which the floorplan puts in one stripe of the die; the slot
+and enable one per copy (a pair's slot into its copies' 24 blocks was the 1e4 square's 10.5 ns); one in
+front of each block of a node read port's copy, `BlockRam(registered=True)`, or of a group read port's
+copy: the root into every copy was the 1e4 square's longest route, 13.5 ns of routing on the floorplanned
+die, with or without a register per copy between), so a fill presented in cycle t is written at the end
+of cycle t + 4; each read port reads its own copy. A
 node read port (`reads`) presents a slot and the node's bank (n % Q) and gets that node's word
 NODE_READ_LATENCY = 4 cycles later: the slot registered in front of each block of the copy (READ_FANOUT =
 1, kept apart: the lane's slot adder and the route to a far copy were the 1e3 poke's critical path; one
@@ -88,13 +90,16 @@ class NodeWindow(wiring.Component):
         m = Module()
         ports = [(p, True) for p in (self.reads if self.n_reads else [])]
         ports += [(p, False) for p in (self.groups if self.n_groups else [])]
-        fill = {nm: delay(m, src, FILL_FANOUT - 2, f"fill_{nm}", data=nm != "en")   # behind the store
+        # behind the store: the word waits there for the slot and enable's register per copy
+        fill = {nm: delay(m, src, FILL_FANOUT - 2 - (nm != "data"), f"fill_{nm}", data=nm != "en")
                 for src, nm in ((self.fill_addr, "addr"), (self.fill_data, "data"), (self.fill_en, "en"))}
         relay = {}
         for j, group in enumerate(self.fill_groups):     # one register per group, beside its copies
             for nm, value in fill.items():
                 r = delay(m, value, 1, f"fill{j}_{nm}{KEEP_APART_TAG}", data=nm != "en")
-                relay.update({(k, nm): r for k in group})
+                relay.update({(k, nm): r if nm == "data" else
+                              delay(m, r, 1, f"copy{k}_relay_{nm}{KEEP_APART_TAG}", data=nm != "en")
+                              for k in group})
         for k, (port, single) in enumerate(ports):
             ring = self.copy(k)
             m.submodules[f"copy{k}"] = ring
