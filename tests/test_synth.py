@@ -141,9 +141,11 @@ def test_missed_constraint_is_reported_not_raised(mac_verilog, tmp_path, capsys)
     assert r["utilization"]["TRELLIS_COMB"]["available"] == 43848
     assert "timing **NOT met**" in (tmp_path / "report.md").read_text()
     err = capsys.readouterr().err.splitlines()
-    assert len(err) == 3, err                          # one line per step, with elapsed time
+    # one line per step, with elapsed time; a slow nextpnr (a loaded machine) also says when it has placed
+    steps = [ln for ln in err if "] nextpnr: placed (" not in ln]
+    assert len(steps) == 3 and len(err) <= 4, err
     assert all(ln.startswith("[synth ") and " s] " in ln for ln in err), err
-    assert "] yosys: " in err[0] and "] nextpnr: Fmax " in err[1] and "] reports written to " in err[2]
+    assert "] yosys: " in steps[0] and "] nextpnr: Fmax " in steps[1] and "] reports written to " in steps[2]
 
 
 def test_unknown_router_is_refused_before_any_tool(mac_verilog, tmp_path):

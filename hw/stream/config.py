@@ -16,7 +16,7 @@ import numpy as np
 from ..datapath import NotSupported
 from ..hostmap import HostMap
 from .kernels import dry_run_element, dry_run_node, dry_run_pair, dry_run_probe_sample, max_count
-from .nodeword import NodeWord
+from .nodeword import NodeWord, bits_for
 from .order import lane_items, stream_order
 from .schedule import A_WRITE, Latencies, build_schedule, spare_lanes
 
@@ -73,7 +73,7 @@ class StreamConfig:
         self.order = stream_order(p.n_nodes, np.stack([p.i, p.j], 1), pairs)
         self.element_dry = dry_run_element(p, formats, units)
         self.pair_dry = dry_run_pair(p, formats, units) if len(pairs) else None
-        self.node_dry = dry_run_node(p, formats, units, formats["fe"].width + 8)
+        self.node_dry = dry_run_node(p, formats, units, self.force_sum_bits)   # its stages follow the widths
         self.probe_dry = dry_run_probe_sample(p, formats, units) if p.probe is not None else None
         self.latencies = Latencies(element=self.element_dry.stage,
                                    element_state=self.element_dry.outputs["state_stage"] + A_WRITE,
@@ -135,6 +135,11 @@ class StreamConfig:
                     nodes = self.order.pair_nodes[items, role]
                     out.append(RingInfo("pr", lane, role, fe + max_count(nodes).bit_length() + 1, nodes))
         return out
+
+    @property
+    def force_sum_bits(self) -> int:
+        """Bits of a node lane's exact sum of its force ring words (hw/stream/node.py)."""
+        return max(ring.acc_bits for ring in self.rings) + bits_for(len(self.rings)) + 1
 
     def ring_masks(self) -> np.ndarray:
         """(N, rings) bits: ring r holds contributions to node n (new numbering)."""

@@ -169,6 +169,8 @@ def dry_run_pair(p, fmt, units) -> Built:
 
 
 def dry_run_node(p, fmt, units, fe_bits: int) -> Built:
+    """`fe_bits`: the width of the lane's force sums (StreamConfig.force_sum_bits): an operation's stages
+    depend on its operands' widths (whether it can saturate: PipeArith `clamp_stage`)."""
     m, fields = Module(), []
     D = p.dim
     xs, us = as_shape(fmt["x"]), as_shape(fmt["u"])

@@ -55,7 +55,7 @@ class NodeLane(wiring.Component):
         self.quantities = cfg.node_dry.quantities
         self.rings = cfg.rings
         self.force_bits = [ring.acc_bits for ring in self.rings]
-        self.sum_bits = max(self.force_bits) + bits_for(len(self.rings)) + 1
+        self.sum_bits = cfg.force_sum_bits
         word = cfg.word
         members = {
             "retire": In(RetireSignature(sch.groups)),
