@@ -79,7 +79,7 @@ def test_node_store_groups_and_host_fields():
 
     def drive(t, get):
         p = plan[t]
-        return sd([(dut.busy, p["busy"]), (dut.rd_addr, p["rd"]), (dut.wr_addr, p["wr"]), (dut.wr_data, p["wdata"]), (dut.wr_en, p["wen"]), (dut.h_addr, p["h_addr"]), (dut.h_bank, p["h_bank"]), (dut.h_field, p["h_field"]), (dut.h_wdata, p["h_wdata"]), (dut.h_we, p["h_we"])])
+        return sd([(dut.busy, (1 << Q) - 1 if p["busy"] else 0), (dut.rd_addr, p["rd"]), (dut.wr_addr, p["wr"]), (dut.wr_data, p["wdata"]), (dut.wr_en, p["wen"]), (dut.h_addr, p["h_addr"]), (dut.h_bank, p["h_bank"]), (dut.h_field, p["h_field"]), (dut.h_wdata, p["h_wdata"]), (dut.h_we, p["h_we"])])
 
     def sample(t, get):
         log.append((get(dut.rd_data), get(dut.h_rdata)))

@@ -215,7 +215,7 @@ class StreamCore(wiring.Component):
         def node_host(what, data=True):
             return delay(m, getattr(hp, f"node_{what}"), NODE_FANOUT, f"store_host_{what}{KEEP_APART_TAG}",
                          data=data)
-        m.d.comb += [store.busy.eq(busy_at("store")), store.rd_addr.eq(ctl.fill.group),
+        m.d.comb += [store.busy.eq(Cat(*[busy_at(f"store{q}") for q in range(Q)])), store.rd_addr.eq(ctl.fill.group),
                      store.h_addr.eq(node_host("addr")), store.h_bank.eq(node_host("bank")),
                      store.h_field.eq(node_host("field")), store.h_wdata.eq(node_host("wdata")),
                      store.h_we.eq(node_host("we", data=False)), hp.node_rdata.eq(store.h_rdata)]
