@@ -273,16 +273,17 @@ def test_saturation_counter_counts_and_flags():
 
     simulate(dut, len(plan) + 6, drive, sample)
     # reference: an event of cycle s is in `count` from cycle s + L (L = 7: entry register, five summing
-    # levels, count), in `flags` from s + 2 (registered on entry); a clear in cycle c zeroes both from c + 1
-    # on, and then only events from cycle c - L + 2 on (count: the ones not yet summed) or c on (flags) are in them
+    # levels, count), in `flags` from s + 3 (registered on entry, then in parts); a clear in cycle c zeroes
+    # both from c + 1 on, and then only events from cycle c - L + 2 on (count: the ones not yet summed) or
+    # c - 1 on (flags) are in them
     L = 7
     ev = lambda s_: plan[s_] if 0 <= s_ < len(plan) else [0] * n
     qs = sorted(set(events))
     for t in range(len(plan) + 4):
-        lo_c, lo_f = (clear_at - L + 2, clear_at) if t >= clear_at + 1 else (0, 0)
+        lo_c, lo_f = (clear_at - L + 2, clear_at - 1) if t >= clear_at + 1 else (0, 0)
         count = sum(sum(ev(s_)) for s_ in range(lo_c, t - L + 1))
         flags = 0
-        for s_ in range(lo_f, t - 1):
+        for s_ in range(lo_f, t - 2):
             for k, q in enumerate(events):
                 if ev(s_)[k]:
                     flags |= 1 << qs.index(q)
