@@ -349,11 +349,12 @@ def test_host_port_decodes_registers_and_memories(elem_fanout, node_fanout):
     valid_at = []
     simulate(dut, len(seq), drive, sample)
     # the bus is registered on entry: a write's strobes a cycle after its request (the control's, RUN and
-    # STEP, two cycles after), answers 5 cycles after; a write while a start is on its way is ignored
+    # STEP, and the saturation clear, two cycles after), answers 5 cycles after; a write while a start is
+    # on its way is ignored
     assert strobes[2]["step_we"] == 1 and strobes[2]["step_wdata"] == 11 and strobes[1]["step_we"] == 0
     assert strobes[3]["run_start"] == 1 and strobes[3]["run_steps"] == 7 and strobes[2]["run_start"] == 0
     assert strobes[3]["node_we"] == 0 and strobes[4]["run_start"] == 0
-    assert strobes[4]["sat_clear"] == 1
+    assert strobes[5]["sat_clear"] == 1 and strobes[4]["sat_clear"] == 0
     assert (strobes[5]["node_we"], strobes[5]["node_field"], strobes[5]["node_bank"], strobes[5]["node_addr"]) == (1, 1, 1, 1)
     assert (strobes[6]["elem_we"], strobes[6]["elem_pos"]) == (0b01, 1)
     m32 = 0xFFFFFFFF

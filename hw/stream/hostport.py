@@ -81,12 +81,13 @@ class HostPort(wiring.Component):
             self.elem_pos.eq(eoff[:pb]), self.elem_wdata.eq(w_data),
             self.elem_we.eq(Cat(*[w_en & in_elem & idle & ((eoff >> (pb + lb)) == 0) & (eoff[pb:pb + lb] == l)
                                   for l in range(self.P)])),
-            self.sat_clear.eq(w_en & (addr == Reg.SATURATIONS)),
         ]
-        # the control's writes registered once more (the write word, its decoding, the start's `steps != 0`
-        # and the control's counters were one cycle across the die: the 1e4 square's critical path, 13.9 ns)
+        # the control's writes and the saturation clear registered once more (the write word, its decoding,
+        # the start's `steps != 0` and the control's counters were one cycle across the die: the 1e4
+        # square's critical path, 13.9 ns; the clear's decoding into the saturation flags' resets, 11.8 ns)
         m.d.sync += [self.run_start.eq(w_en & (addr == Reg.RUN) & idle), self.run_steps.eq(w_data),
-                     self.step_we.eq(w_en & (addr == Reg.STEP) & idle), self.step_wdata.eq(w_data)]
+                     self.step_we.eq(w_en & (addr == Reg.STEP) & idle), self.step_wdata.eq(w_data),
+                     self.sat_clear.eq(w_en & (addr == Reg.SATURATIONS))]
         # reads: the address registered, decoded and the decoding registered (so that the answer's
         # multiplexer has registered selects: nextpnr had the address arithmetic and the multiplexer of
         # the element lanes' words in one cycle), the answer selected then and registered
