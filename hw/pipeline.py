@@ -23,10 +23,11 @@ Schedule (as soon as possible, no stalls; II = 1):
   convert, select: 1 stage; comparisons and boolean logic: 0 stages (combinational, folded into the select
   that uses them); constants and per-phase values (step counter): no stage at all;
 - `clamp_stage` (the streaming core's lanes): an operation whose result can saturate takes one stage more,
-  its exact rounded value registered before the clamp; a comparison of values takes one stage, registered. In one stage, the carry chain's top bits decided
-  the clamp, whose select fanned out to every bit of the result (nextpnr on the 1e4 square: a product's
-  rounding into its register, 11.3 ns, 4.1 of them on that fan-out; a window word's saturating
-  difference into a multiplier's operand register, 11.6 ns);
+  its exact rounded value registered before the clamp; a comparison of values takes one stage,
+  registered. In one stage, the carry chain's top bits decided the clamp, whose select fanned out to
+  every bit of the result (nextpnr on the 1e4 square: a product's rounding into its register, 11.3 ns,
+  4.1 of them on that fan-out; a window word's saturating difference into a multiplier's operand
+  register, 11.6 ns);
 - function units (hw/rtl_funcunits.py) stream their operand in and their result out after their latency.
 A valid bit travels with every item; only it has a reset: a value's registers have none (read only
 where its valid bit says so), since a reset on every register was a net of 21,900 flip-flops across
