@@ -160,9 +160,9 @@ class ElementLane(wiring.Component):
         # higher one's to the RunSum
         at = lambda v: ar.delay(v, ROM_STAGE, s)
         sw = at(swap)
-        rb = bits_for(cfg.schedule.ring_groups)           # a ring's slot: the window's mod Wr
-        (slot_i, slot_j) = [ar.delay(v[:rb], SLOT_STAGE, s) for v in slots3]
-        (b_i, b_j) = [at(b) for _, b in roles]
+        rb = len(self.contrib_lo.slot)                    # a ring's slot: the window's mod Wr
+        slot_i, slot_j = [ar.delay(v[:rb], SLOT_STAGE, s) for v in slots3]
+        b_i, b_j = [at(b) for _, b in roles]
         fb = fmt["fe"].width
         fe_i = [ar.at(v, s) for v in built.outputs["fe"]]
         fe_j = [ar.at(v, s) for v in built.outputs["fe_neg"]]

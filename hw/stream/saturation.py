@@ -61,10 +61,10 @@ class SaturationCounter(wiring.Component):
         per_cycle, = sums
         hits = []
         for k, qq in enumerate(self.quantities):
-            mine = [ev for ev, q in zip(evs, self.events) if q == qq]
+            mine = [ev != 0 for ev, q in zip(evs, self.events) if q == qq]
             parts = [Signal(name=f"hit{k}_{j}") for j in range(0, len(mine), HIT_FAN_IN)]
-            m.d.sync += [r.eq(Cat(*[ev != 0 for ev in mine[j * HIT_FAN_IN:(j + 1) * HIT_FAN_IN]]).any())
-                         for j, r in enumerate(parts)]
+            m.d.sync += [r.eq(Cat(*mine[j:j + HIT_FAN_IN]).any())
+                         for j, r in zip(range(0, len(mine), HIT_FAN_IN), parts)]
             hits.append(Cat(*parts).any())
         hits = Cat(*hits)
         new = self.count + per_cycle
