@@ -9,14 +9,14 @@ and enable one per copy (a pair's slot into its copies' 24 blocks was the 1e4 sq
 front of each block of a node read port's copy, `BlockRam(registered=True)`, or of a group read port's
 copy: the root into every copy was the 1e4 square's longest route, 13.5 ns of routing on the floorplanned
 die, with or without a register per copy between), so a fill presented in cycle t is written at the end
-of cycle t + 4; each read port reads its own copy. A node read port (`reads`) presents a slot and the node's bank (n % Q) and gets that node's word
-NODE_READ_LATENCY = 4 cycles later: the slot registered in front of each block of the copy (READ_FANOUT =
-1, kept apart: the lane's slot adder and the route to a far copy were the 1e3 poke's critical path; one
-register for a copy's six blocks, spread over the die, routed 13.6 ns on the 1e4 square), the block
-RAM's 2, then the bank's multiplexer into a register (nextpnr put 4.8 ns of routing between a window
-copy and the multiplexer, which fed an element lane's first subtraction in the same cycle); a group
-read port (`groups`: the node lanes, which retire a whole
-group) gets the group word LATENCY = 2 cycles later. The schedule guarantees that every read sees the
+of cycle t + 4; each read port reads its own copy. A node read port (`reads`) presents a slot and the
+node's bank (n % Q) and gets that node's word NODE_READ_LATENCY = 4 cycles later: the slot registered in
+front of each block of the copy (READ_FANOUT = 1, kept apart: the lane's slot adder and the route to a far
+copy were the 1e3 poke's critical path; one register for a copy's six blocks, spread over the die, routed
+13.6 ns on the 1e4 square), the block RAM's 2, then the bank's multiplexer into a register (nextpnr put 4.8
+ns of routing between a window copy and the multiplexer, which fed an element lane's first subtraction in
+the same cycle); a group read port (`groups`: the node lanes, which retire a whole group) gets the group
+word LATENCY = 2 cycles later. The schedule guarantees that every read sees the
 group its slot holds for that read's step (hw/stream/schedule.py).
 The copies listed in `lut_copies` are LUT RAM (`BlockRam(distributed=True)`, the same latency).
 """
